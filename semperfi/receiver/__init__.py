@@ -1,0 +1,1 @@
+"""The conventional receiver chain: acquisition, tracking, navigation, observables, PVT, outputs."""

@@ -1,0 +1,1 @@
+"""The world SemperFi is proven against: constellation, motion, legitimate and attacker signals, noise, truth."""
