@@ -1,0 +1,1 @@
+"""Evaluation: scenarios, metrics, the paper's figures, and cross-checks against other receivers."""
