@@ -125,7 +125,7 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--out-dir", type=Path, help="where GNSS-SDR runs and writes (default: <stem>.gnss-sdr/)")
     p.add_argument("--timeout", type=float, dest="timeout_s", metavar="S",
                    help="give up after this many seconds (default: 300 + 10 x the file's duration)")
-    p.add_argument("--channels", type=int, default=8, help="GNSS-SDR tracking channels (default 8)")
+    p.add_argument("--channels", type=int, default=12, help="GNSS-SDR tracking channels (default 12)")
     p.add_argument("--trop-model", choices=TROP_MODELS, default="Saastamoinen")
     p.add_argument("--iono-model", choices=IONO_MODELS, default="Broadcast")
     p.add_argument("--leap-seconds", type=float, default=GPS_UTC_LEAP_S,

@@ -75,7 +75,7 @@ def _fmt_float(value: float) -> str:
 
 
 def gnss_sdr_config(data_file: str | os.PathLike, fs_hz: float, item_type: str, if_hz: float = 0.0,
-                    channels: int = 8, out_dir: str | os.PathLike = ".", trop_model: str = "Saastamoinen",
+                    channels: int = 12, out_dir: str | os.PathLike = ".", trop_model: str = "Saastamoinen",
                     iono_model: str = "Broadcast", output_rate_ms: int = 100, doppler_max_hz: int = 10000,
                     elevation_mask_deg: float = 5.0) -> str:
     """A complete GNSS-SDR 0.0.17 configuration for GPS L1 C/A from `data_file`.
@@ -185,8 +185,8 @@ def gnss_sdr_config(data_file: str | os.PathLike, fs_hz: float, item_type: str, 
         "",
         "Tracking_1C.implementation=GPS_L1_CA_DLL_PLL_Tracking",
         "Tracking_1C.item_type=gr_complex",
-        "Tracking_1C.pll_bw_hz=40.0",
-        "Tracking_1C.dll_bw_hz=4.0",
+        "Tracking_1C.pll_bw_hz=35.0",
+        "Tracking_1C.dll_bw_hz=2.0",
         "Tracking_1C.early_late_space_chips=0.5",
         "Tracking_1C.dump=false",
         "",

@@ -61,22 +61,18 @@ def azimuth_elevation(receiver_ecef_m, sat_ecef_m):
     return az, el
 
 
-def light_time_range(sat_pos_vel_at, receiver_ecef_m, t_rx_s, iterations: int = 3):
+def light_time_range(sat_position_at, sat_pos_vel_at, receiver_ecef_m, t_rx_s, iterations: int = 2):
     """Geometric range (m) and transmit time for a signal received at t_rx_s, by light-time iteration.
 
-    sat_pos_vel_at(t_tx) returns (position, velocity) in ECEF at transmit time; the position is rotated into
-    the reception frame (Sagnac). Returns (range_m, t_tx_s, sat_pos_rx_frame, sat_vel_rx_frame).
+    sat_position_at(t_tx) gives ECEF positions at transmit time, sat_pos_vel_at(t_tx) positions and velocities;
+    both are rotated into the reception frame (Sagnac). Two iterations from a 75 ms guess leave micrometres.
+    Returns (range_m, t_tx_s, sat_pos_rx_frame, sat_vel_rx_frame).
     """
-    t_tx = np.asarray(t_rx_s, dtype=np.float64) - 0.075
+    t_rx = np.asarray(t_rx_s, dtype=np.float64)
+    t_tx = t_rx - 0.075
     for _ in range(iterations):
-        pos, vel = sat_pos_vel_at(t_tx)
-        flight = np.asarray(t_rx_s) - t_tx
-        pos_r = rotate_earth(pos, flight)
-        rng = np.linalg.norm(pos_r - receiver_ecef_m, axis=-1)
-        t_tx = np.asarray(t_rx_s) - rng / SPEED_OF_LIGHT_M_S
+        pos_r = rotate_earth(sat_position_at(t_tx), t_rx - t_tx)
+        t_tx = t_rx - np.linalg.norm(pos_r - receiver_ecef_m, axis=-1) / SPEED_OF_LIGHT_M_S
     pos, vel = sat_pos_vel_at(t_tx)
-    flight = np.asarray(t_rx_s) - t_tx
-    pos_r = rotate_earth(pos, flight)
-    vel_r = rotate_earth(vel, flight)
-    rng = np.linalg.norm(pos_r - receiver_ecef_m, axis=-1)
-    return rng, t_tx, pos_r, vel_r
+    pos_r, vel_r = rotate_earth(pos, t_rx - t_tx), rotate_earth(vel, t_rx - t_tx)
+    return np.linalg.norm(pos_r - receiver_ecef_m, axis=-1), t_tx, pos_r, vel_r

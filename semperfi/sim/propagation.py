@@ -10,7 +10,7 @@ import numpy as np
 
 from ..gps.atmosphere import iono_delay_m, troposphere_delay_m
 from ..gps.constants import SPEED_OF_LIGHT_M_S
-from ..gps.ephemeris import Ephemeris, IonoParams, satellite_clock, satellite_position_velocity
+from ..gps.ephemeris import Ephemeris, IonoParams, satellite_clock, satellite_position, satellite_position_velocity
 from ..gps.geometry import azimuth_elevation, ecef_to_geodetic, light_time_range
 
 
@@ -29,7 +29,8 @@ def arrival(stacked: Ephemeris, receiver_ecef_m, receiver_vel_m_s, tow_s: float,
     """Signals received at GPS time tow_s by a receiver at receiver_ecef_m (all satellites of stacked)."""
     n = np.size(stacked.prn)
     t_rx = np.full(n, tow_s)
-    rng, t_tx, sat_pos, sat_vel = light_time_range(lambda t: satellite_position_velocity(stacked, t),
+    rng, t_tx, sat_pos, sat_vel = light_time_range(lambda t: satellite_position(stacked, t),
+                                                   lambda t: satellite_position_velocity(stacked, t),
                                                    receiver_ecef_m, t_rx)
     clock_s, clock_drift = satellite_clock(stacked, t_tx)
     los = (sat_pos - receiver_ecef_m) / rng[:, None]

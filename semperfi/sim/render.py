@@ -16,19 +16,33 @@ CARRIER_TABLE = np.exp(2j * np.pi * (np.arange(1 << CARRIER_TABLE_BITS) + 0.5) /
 @njit(cache=True, nogil=True)
 def _render_kernel(out, codes, bits, chips0, chip_rate, phase0_cycles, phase_rate_cycles, amplitude, table):
     n_table = table.size
+    period = float(CA_CODE_LENGTH_CHIPS)
     for s in range(chips0.size):
         a = amplitude[s]
         if a == 0.0:
             continue
         code = codes[s]
         b = bits[s]
-        c0, cr, p0, pr = chips0[s], chip_rate[s], phase0_cycles[s], phase_rate_cycles[s]
+        # incremental phases: no division or modulo per sample; the float error over a chunk is ~1e-9 chip
+        epochs = np.int64(chips0[s] // period)
+        c = chips0[s] - epochs * period
+        bit = epochs // 20
+        epoch_in_bit = epochs - bit * 20
+        cr = chip_rate[s]
+        ph = phase0_cycles[s] - np.floor(phase0_cycles[s])
+        pr = phase_rate_cycles[s] - np.floor(phase_rate_cycles[s])   # cycles per sample, folded into [0, 1)
         for k in range(out.size):
-            chip = np.int64(np.floor(c0 + k * cr))
-            ph = p0 + k * pr
-            idx = np.int64((ph - np.floor(ph)) * n_table)
-            sign = a * code[chip % CA_CODE_LENGTH_CHIPS] * b[chip // CHIPS_PER_BIT]
-            out[k] += sign * table[idx]
+            out[k] += (a * code[np.int64(c)] * b[bit]) * table[np.int64(ph * n_table)]
+            c += cr
+            if c >= period:
+                c -= period
+                epoch_in_bit += 1
+                if epoch_in_bit == 20:
+                    epoch_in_bit = 0
+                    bit += 1
+            ph += pr
+            if ph >= 1.0:
+                ph -= 1.0
 
 
 def render(out: np.ndarray, codes: np.ndarray, bits: np.ndarray, chips0: np.ndarray, chip_rate: np.ndarray,

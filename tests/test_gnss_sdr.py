@@ -1,0 +1,53 @@
+"""A receiver nobody here wrote agrees with the simulator: GNSS-SDR fixes where the truth (or the attacker) says."""
+
+import shutil
+
+import numpy as np
+import pytest
+
+from semperfi.eval.gnss_sdr import horizontal_errors_m, parse_gga, run_gnss_sdr
+from semperfi.sim.run import simulate_to_file
+from semperfi.sim.scenario import load_scenario
+
+needs_gnss_sdr = pytest.mark.skipif(shutil.which("gnss-sdr") is None,
+                                    reason="gnss-sdr is not on PATH (scripts/crosscheck-gnss-sdr installs it)")
+FS = 2e6
+# Subframe 1 begins 3 s into the file, so GNSS-SDR has its ephemerides about 21 s in.
+COMMON = [f"signal.fs_hz={FS}", "time.duration_s=40.0", 'time.start="2022-01-01T00:00:27"']
+
+
+def _run(tmp_path, name, brdc_path, *sets):
+    cfg = load_scenario(None, COMMON + [f'constellation.rinex="{brdc_path}"', *sets])
+    out = tmp_path / f"{name}.bin"
+    simulate_to_file(cfg, out)
+    fixes = run_gnss_sdr(out, FS, "ishort", 0.0, tmp_path / f"{name}.gnss-sdr", timeout_s=600)
+    return cfg, fixes
+
+
+@needs_gnss_sdr
+@pytest.mark.gnss_sdr
+def test_gnss_sdr_fixes_on_the_truth(tmp_path, brdc_path):
+    cfg, fixes = _run(tmp_path, "static", brdc_path)
+    assert len(fixes) >= 20, f"GNSS-SDR gave {len(fixes)} fixes"
+    err = horizontal_errors_m(fixes, cfg["receiver"]["lat_deg"], cfg["receiver"]["lon_deg"])
+    assert np.mean(err) < 5.0, f"GNSS-SDR horizontal error: mean {np.mean(err):.2f} m, p95 {np.percentile(err, 95):.2f} m"
+
+
+@needs_gnss_sdr
+@pytest.mark.gnss_sdr
+def test_gnss_sdr_follows_the_attacker_to_its_claimed_position(tmp_path, brdc_path):
+    cfg, fixes = _run(tmp_path, "attack", brdc_path, "attacker.enabled=true", "attacker.power_advantage_db=6.0",
+                      "attacker.offset_east_m=1000.0")
+    assert len(fixes) >= 20, f"GNSS-SDR gave {len(fixes)} fixes"
+    lat0, lon0 = np.radians(cfg["receiver"]["lat_deg"]), cfg["receiver"]["lon_deg"]
+    claimed_lon = lon0 + np.degrees(1000.0 / (6378137.0 * np.cos(lat0)))   # 1 km east, to a metre
+    err = horizontal_errors_m(fixes, cfg["receiver"]["lat_deg"], claimed_lon)
+    assert np.mean(err) < 50.0, f"distance from the claimed position: mean {np.mean(err):.1f} m"
+
+
+def test_gga_parsing():
+    fix = parse_gga("$GPGGA,120024.10,4220.3886360,N,07105.3542378,W,1,08,1.0,12.817,M,0.000,M,0.0,*5B")
+    assert fix is not None
+    assert fix.lat_deg == pytest.approx(42 + 20.3886360 / 60)
+    assert fix.lon_deg == pytest.approx(-(71 + 5.3542378 / 60))
+    assert fix.n_sats == 8
