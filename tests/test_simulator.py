@@ -156,3 +156,15 @@ def test_outputs_are_described(clean):
     assert meta["global"]["core:sample_rate"] == FS
     assert out.with_name("clean.scenario.toml").is_file()
     assert open_iq(out).n_samples == int(FS * 1.0)
+
+
+def test_intermediate_frequency_shifts_every_signal(tmp_path):
+    out, rows = simulate(tmp_path, "if", "signal.if_hz=250000.0", "constellation.max_satellites=5", duration=0.02,
+                         fmt="gr_complex")
+    reader = open_iq(out)
+    assert reader.if_hz == 250000.0
+    cafs = acquire(reader.read(0, int(0.01 * FS)), FS, sorted({int(r["prn"]) for r in rows}),
+                   DopplerGrid(max_hz=6000, step_hz=125), if_hz=reader.if_hz, coherent_ms=2, noncoherent=5)
+    for prn, caf in cafs.items():
+        t = first_truth(rows, prn)
+        assert caf.best is not None and abs(caf.best.doppler_hz - t["doppler_hz"]) < 100, prn

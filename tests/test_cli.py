@@ -1,0 +1,69 @@
+"""The command line: bad input is one clear line on stderr and a non-zero exit, never a traceback."""
+
+import subprocess
+import sys
+
+import pytest
+
+
+def semperfi(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "semperfi.cli", *args], capture_output=True, text=True, cwd=cwd,
+                          timeout=300)
+
+
+def one_line_error(result, *fragments):
+    assert result.returncode != 0, result.stdout
+    lines = [l for l in result.stderr.splitlines() if l.strip()]
+    assert len(lines) == 1, result.stderr
+    assert "Traceback" not in result.stderr
+    for f in fragments:
+        assert f in lines[0], lines[0]
+
+
+@pytest.mark.parametrize("args, fragments", [
+    (["--set", "signal.format=\"int4\""], ["signal.format"]),
+    (["--set", "signal.fs_hz=-4e6"], ["fs_hz"]),
+    (["--set", "attacker.power_advantage_db=40.0"], ["power_advantage_db"]),
+    (["--set", "constellation.cn0_dbhz=45.0", "--set", "nosuch.key=1"], ["unknown configuration key 'nosuch'"]),
+    (["--set", "constellation.rinex=\"/nonexistent/brdc.22n\""], ["not found"]),
+    (["--set", "receiver.lat_deg=123.0"], ["latitude"]),
+    (["--set", "signal.if_hz=3e6"], ["if_hz"]),
+    (["--set", "time.start=\"yesterday\""], ["time.start"]),
+])
+def test_sim_refuses_impossible_scenarios(tmp_path, args, fragments):
+    one_line_error(semperfi("sim", "-o", str(tmp_path / "x.bin"), "--duration", "0.1", *args), *fragments)
+
+
+def test_sim_refuses_an_unknown_format_and_a_garbled_rinex(tmp_path):
+    r = semperfi("sim", "-o", str(tmp_path / "x.bin"), "--format", "int4")
+    assert r.returncode != 0 and "int4" in r.stderr and "Traceback" not in r.stderr
+    garbled = tmp_path / "garbled.22n"
+    garbled.write_bytes(b"     2              NAVIGATION DATA     \n\x00\xff garbage \n" * 50)
+    one_line_error(semperfi("sim", "-o", str(tmp_path / "x.bin"), "--duration", "0.1", "--set",
+                            f'constellation.rinex="{garbled}"'), "garbled.22n")
+    bad_toml = tmp_path / "bad.toml"
+    bad_toml.write_text("[signal\nfs_hz = ")
+    one_line_error(semperfi("sim", str(bad_toml), "-o", str(tmp_path / "x.bin")), "bad.toml")
+
+
+def test_sim_then_acquire_round_trip(tmp_path):
+    out = tmp_path / "s.bin"
+    r = semperfi("sim", "-o", str(out), "--fs", "2e6", "--duration", "0.05", "--format", "ibyte",
+                 "--set", "constellation.max_satellites=4", "--set", "constellation.cn0_dbhz=48.0")
+    assert r.returncode == 0, r.stderr
+    assert "legitimate PRNs" in r.stdout
+    r = semperfi("acquire", str(out), "--prn", "1-32")
+    assert r.returncode == 0, r.stderr
+    acquired = [l for l in r.stdout.splitlines()[1:] if l.strip()]
+    assert len(acquired) >= 4, r.stdout
+
+
+def test_acquire_with_the_wrong_rate_says_what_to_check(tmp_path):
+    out = tmp_path / "s.bin"
+    assert semperfi("sim", "-o", str(out), "--fs", "2e6", "--duration", "0.05").returncode == 0
+    out.with_suffix(".sigmf-meta").unlink()
+    one_line_error(semperfi("acquire", str(out), "--fs", "2.5e6", "--format", "ishort"), "--fs", "--format")
+    one_line_error(semperfi("acquire", str(out), "--fs", "2e6"), "--format")
+    empty = tmp_path / "empty.bin"
+    empty.write_bytes(b"")
+    one_line_error(semperfi("acquire", str(empty), "--fs", "2e6", "--format", "ishort"), "empty")
