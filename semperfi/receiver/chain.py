@@ -1,0 +1,258 @@
+"""The conventional receiver chain over a stream of samples: acquisition -> tracking -> navigation ->
+observables -> PVT, with every step reported as an event and every fix written as it is computed.
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..gps.constants import SECONDS_PER_WEEK, SPEED_OF_LIGHT_M_S
+from ..gps.time import GpsTime, wrap_week_s
+from .acquisition import Caf, DopplerGrid, acquire
+from .navigation import AssistedNav, NavDecoder
+from .pvt import solve
+from .tracking import NEXT_SAMPLE, Channel, LoopConfig, initial_state
+from .types import Fix, Observation
+
+TYPICAL_FLIGHT_S = 0.075       # first guess of the signals' travel time, to start the receiver clock
+
+
+@dataclass
+class ChannelRow:
+    """What the live channel table shows."""
+    prn: int
+    state: str
+    cn0_dbhz: float
+    doppler_hz: float
+    code_phase_chips: float
+    subframes: int
+
+
+@dataclass
+class RunStats:
+    n_fixes: int = 0
+    first_fix_t_rx_s: float | None = None
+    acquired: set = field(default_factory=set)
+    subframes: int = 0
+    parity_errors: int = 0
+    samples: int = 0
+
+
+class Receiver:
+    """Feed it consecutive chunks of complex samples; it calls on_fix for every fix and events.emit for events."""
+
+    def __init__(self, cfg: dict, fs_hz: float, if_hz: float = 0.0, assisted: AssistedNav | None = None,
+                 on_fix=None, events=None, week_hint: int | None = None):
+        self.cfg, self.fs_hz, self.if_hz = cfg, float(fs_hz), float(if_hz)
+        self.assisted, self.on_fix, self.events = assisted, on_fix, events
+        self.week_hint = week_hint
+        a, t = cfg["acquisition"], cfg["tracking"]
+        self.prns = list(a["prns"]) or list(range(1, 33))
+        self.loop = LoopConfig(pll_bw_hz=t["pll_bw_hz"], fll_bw_hz=t["fll_bw_hz"], dll_bw_hz=t["dll_bw_hz"],
+                               spacing_chips=t["spacing_chips"], pull_in_ms=t["pull_in_ms"],
+                               min_cn0_dbhz=t["min_cn0_dbhz"])
+        self.samples_per_ms = int(round(self.fs_hz * 1e-3))
+        self.acq_samples = self.samples_per_ms * a["coherent_ms"] * a["noncoherent"]
+        self.channels: dict[int, Channel] = {}
+        self.decoders: dict[int, NavDecoder] = {}
+        self.warm: dict[int, float] = {}            # PRN -> last Doppler, for warm re-acquisition after a loss
+        self.last_cafs: dict[int, Caf] = {}
+        self.subframes_by_prn: dict[int, int] = {}
+        self.stats = RunStats()
+        self.iono = assisted.iono if assisted else None
+        self.utc = None
+        self._buf = np.empty(0, dtype=np.complex64)
+        self._base = 0                              # absolute index of _buf[0]
+        self._next_acq_sample = 0
+        self._epoch_period = self.fs_hz / cfg["pvt"]["rate_hz"]
+        self._next_epoch = 1                        # measurement epoch count (epoch k at sample k * period)
+        self._t_rx0: float | None = None            # receiver clock (GPS s of week) at sample 0
+        self._week: int | None = week_hint
+        self.last_fix: Fix | None = None
+
+    # -- events ---------------------------------------------------------------------------------------------
+    def _emit(self, kind: str, t_rx_s: float, **fields) -> None:
+        if self.events is not None:
+            self.events.emit(kind, t_rx_s, **fields)
+
+    # -- acquisition ----------------------------------------------------------------------------------------
+    def _search(self, samples: np.ndarray, prns: list[int], center_hz: float = 0.0, span_hz: float | None = None):
+        a = self.cfg["acquisition"]
+        step = a["doppler_step_hz"] or 2.0 / 3.0 / (a["coherent_ms"] * 1e-3)
+        grid = DopplerGrid(center_hz, span_hz or a["doppler_max_hz"], step)
+        return acquire(samples, self.fs_hz, prns, grid, self.if_hz, a["coherent_ms"], a["noncoherent"], a["pfa"],
+                       a["max_peaks"])
+
+    def _is_cross_talk(self, caf: Caf, cafs: dict[int, Caf]) -> bool:
+        """A weak peak at the Doppler (mod 1 kHz) of a much stronger PRN is that PRN's cross-correlation."""
+        b = caf.best
+        margin = self.cfg["acquisition"]["cross_correlation_db"]
+        stronger = [(o.best.doppler_hz, o.best.cn0_dbhz) for o in cafs.values() if o.best and o.prn != caf.prn]
+        stronger += [(ch.doppler_at(0), ch.cn0_dbhz) for ch in self.channels.values()]   # signals in track too
+        return any(cn0 - b.cn0_dbhz > margin and abs((dop - b.doppler_hz + 500.0) % 1000.0 - 500.0) < 150.0
+                   for dop, cn0 in stronger)
+
+    def _acquire(self) -> None:
+        start = self._base + self._buf.size - self.acq_samples
+        samples = self._buf[-self.acq_samples:]
+        t_s = start / self.fs_hz
+        free = self.cfg["tracking"]["channels"] - len(self.channels)
+        cold = [p for p in self.prns if p not in self.channels and p not in self.warm]
+        cafs = self._search(samples, cold) if cold else {}
+        for prn, doppler in list(self.warm.items()):
+            if prn not in self.channels:
+                cafs.update(self._search(samples, [prn], center_hz=doppler, span_hz=1000.0))
+        self.last_cafs.update(cafs)
+        found = [c for c in cafs.values() if c.best is not None]
+        found.sort(key=lambda c: -c.best.metric)
+        for caf in found:
+            b = caf.best
+            if self._is_cross_talk(caf, cafs):
+                self._emit("acquisition_rejected", t_s, prn=caf.prn, reason="cross-correlation",
+                           code_phase_chips=b.code_phase_chips, doppler_hz=b.doppler_hz, cn0_dbhz=b.cn0_dbhz)
+                continue
+            self._emit("acquisition", t_s, prn=caf.prn, code_phase_chips=round(b.code_phase_chips, 4),
+                       doppler_hz=round(b.doppler_hz, 1), cn0_dbhz=round(b.cn0_dbhz, 1),
+                       peak_ratio=round(caf.peak_ratio, 2), peaks=len(caf.peaks))
+            self.stats.acquired.add(caf.prn)
+            if free <= 0:
+                continue
+            st = initial_state(b.code_phase_chips, start, b.doppler_hz, self.fs_hz, start)
+            self.channels[caf.prn] = Channel(caf.prn, self.fs_hz, self.if_hz, st, self.loop)
+            self.decoders.setdefault(caf.prn, NavDecoder(caf.prn, self._week))
+            self.warm.pop(caf.prn, None)
+            free -= 1
+            self._emit("tracking_start", t_s, prn=caf.prn)
+
+    # -- the stream -----------------------------------------------------------------------------------------
+    def feed(self, chunk: np.ndarray) -> None:
+        """Process the next consecutive chunk of samples."""
+        self._buf = np.concatenate([self._buf, np.asarray(chunk, dtype=np.complex64)])
+        end = self._base + self._buf.size
+        self.stats.samples = end
+        if end >= self._next_acq_sample and self._buf.size >= self.acq_samples:
+            self._acquire()
+            self._next_acq_sample = end + int(self.cfg["acquisition"]["reacquire_s"] * self.fs_hz)
+        for prn, ch in list(self.channels.items()):
+            ch.process(self._buf, self._base)
+            self._decode(prn, ch)
+            twin = self._cross_talk_source(prn, ch)
+            if twin is not None:
+                self._emit("cross_correlation", end / self.fs_hz, prn=prn, source_prn=twin,
+                           cn0_dbhz=round(float(ch.cn0_dbhz), 1))
+                del self.channels[prn]
+                self.decoders.pop(prn, None)
+                continue
+            if not ch.locked:
+                self._emit("loss_of_lock", end / self.fs_hz, prn=prn, cn0_dbhz=round(float(ch.cn0_dbhz), 1))
+                self.warm[prn] = ch.doppler_at(0)
+                del self.channels[prn]
+                self._next_acq_sample = min(self._next_acq_sample, end + self.acq_samples)
+        self._measure()
+        keep = max(2 * self.samples_per_ms + 2, self.acq_samples)
+        if self._buf.size > keep:
+            self._base += self._buf.size - keep
+            self._buf = self._buf[-keep:].copy()
+
+    def _cross_talk_source(self, prn: int, ch: Channel) -> int | None:
+        """The PRN whose much stronger signal this channel is really tracking, through the codes' cross-correlation.
+
+        Cross-correlation of two C/A codes is coherent when their Dopplers differ by a multiple of 1 kHz, and lies
+        21 dB or more below the stronger signal; a channel that fits both is not a satellite of its own.
+        """
+        if ch.pull_in or not np.isfinite(ch.cn0_dbhz):
+            return None
+        margin = self.cfg["acquisition"]["cross_correlation_db"]
+        for other_prn, other in self.channels.items():
+            if other_prn == prn or other.pull_in:
+                continue
+            df = abs((other.doppler_at(0) - ch.doppler_at(0) + 500.0) % 1000.0 - 500.0)
+            if other.cn0_dbhz - ch.cn0_dbhz > margin and df < 20.0:
+                return other_prn
+        return None
+
+    def _decode(self, prn: int, ch: Channel) -> None:
+        soft, first = ch.take_bits()
+        if soft.size == 0:
+            return
+        for ev in self.decoders[prn].push_bits(soft, first):
+            t_s = ch.epoch_sample[ch.ms_of_bit(ev.start_bit_index) % ch.HISTORY_MS] / self.fs_hz
+            self.stats.subframes += ev.accepted
+            self.subframes_by_prn[prn] = self.subframes_by_prn.get(prn, 0) + ev.accepted
+            self.stats.parity_errors += ev.parity_errors
+            self._emit("subframe", float(t_s), prn=prn, subframe_id=ev.subframe_id, page=ev.page,
+                       tow_s=ev.t_sv_start_s, parity_errors=ev.parity_errors)
+        dec = self.decoders[prn]
+        if dec.iono is not None and self.iono is None:
+            self.iono, self.utc = dec.iono, dec.utc
+            self._emit("iono_utc", ch.ms * 1e-3, prn=prn)
+        if dec.ephemeris is not None and self._week is None:
+            self._week = dec.ephemeris.week
+
+    def _ephemeris(self, prn: int, tow_s: float):
+        if self.assisted is not None:
+            eph = self.assisted.ephemeris(prn, GpsTime(self._week, tow_s)) if self._week is not None else None
+            if eph is not None:
+                return eph
+        return self.decoders[prn].ephemeris if prn in self.decoders else None
+
+    def _measure(self) -> None:
+        """Observables and a fix at every measurement epoch the channels have tracked past."""
+        if not self.channels:
+            return
+        tracked_to = min(ch.st[NEXT_SAMPLE] for ch in self.channels.values())   # the slowest channel
+        while self._next_epoch * self._epoch_period < tracked_to - self.samples_per_ms:
+            sample = self._next_epoch * self._epoch_period
+            self._next_epoch += 1
+            self._fix_at(sample)
+
+    def observations_at(self, sample: float) -> list[tuple[int, float, float, float, object]]:
+        """(prn, t_sv_s, doppler_hz, cn0_dbhz, ephemeris) for every channel that can say its transmit time."""
+        out = []
+        for prn, ch in self.channels.items():
+            anchor = self.decoders[prn].time_anchor
+            if anchor is None or ch.bits.edge_ms is None or ch.pull_in:
+                continue
+            start_bit, t_sv_start = anchor
+            t_sv = ch.transmit_time_at(sample, ch.ms_of_bit(start_bit), t_sv_start)
+            if t_sv is None:
+                continue
+            t_sv %= SECONDS_PER_WEEK
+            eph = self._ephemeris(prn, t_sv)
+            if eph is None:
+                continue
+            out.append((prn, t_sv, ch.doppler_at(sample), float(ch.cn0_dbhz), eph))
+        return out
+
+    def _fix_at(self, sample: float) -> None:
+        raw = self.observations_at(sample)
+        if len(raw) < 4:
+            return
+        if self._t_rx0 is None:   # start the receiver clock so the pseudoranges come out near 20 000 km
+            self._t_rx0 = max(r[1] for r in raw) + TYPICAL_FLIGHT_S - sample / self.fs_hz
+        t_rx = (self._t_rx0 + sample / self.fs_hz) % SECONDS_PER_WEEK
+        obs = [Observation(prn, SPEED_OF_LIGHT_M_S * wrap_week_s(t_rx - t_sv), t_sv, dop, cn0, eph,
+                           weight=10 ** (min(cn0, 50.0) / 10) / 10 ** 4.5)
+               for prn, t_sv, dop, cn0, eph in raw if np.isfinite(cn0)]
+        p = self.cfg["pvt"]
+        fix = solve(obs, sample / self.fs_hz, self._week, self.iono if p["ionosphere"] else None,
+                    troposphere=p["troposphere"], prior=self.last_fix, elevation_mask_deg=p["elevation_mask_deg"])
+        if fix is None:
+            return
+        self.last_fix = fix
+        self.stats.n_fixes += 1
+        if self.stats.first_fix_t_rx_s is None:
+            self.stats.first_fix_t_rx_s = fix.t_rx_s
+            self._emit("first_fix", fix.t_rx_s, lat_deg=fix.lat_deg, lon_deg=fix.lon_deg, n_sats=fix.n_sats)
+        if self.on_fix is not None:
+            self.on_fix(fix)
+
+    def channel_rows(self) -> list[ChannelRow]:
+        rows = []
+        for prn, ch in sorted(self.channels.items()):
+            state = "pull-in" if ch.pull_in else ("bit-sync" if ch.bits.edge_ms is None else "tracking")
+            if self.decoders[prn].time_anchor is not None:
+                state = "nav" if self._ephemeris(prn, self.decoders[prn].time_anchor[1]) is not None else "tow"
+            rows.append(ChannelRow(prn, state, float(ch.cn0_dbhz), ch.doppler_at(0), float(ch.st[0]),
+                                   self.subframes_by_prn.get(prn, 0)))
+        return rows

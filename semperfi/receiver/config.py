@@ -1,0 +1,33 @@
+"""The receiver's configuration keys with their defaults (TOML, overridable with --set section.key=value)."""
+
+DEFAULTS: dict = {
+    "acquisition": {
+        "prns": [],                 # empty = 1..32
+        "doppler_max_hz": 6000.0,
+        "doppler_step_hz": 0.0,     # 0 = two thirds of 1 / coherent time
+        "coherent_ms": 2,
+        "noncoherent": 5,
+        "pfa": 1e-3,                # false-alarm probability of one PRN's whole search
+        "max_peaks": 8,
+        "reacquire_s": 5.0,         # how often untracked PRNs are searched again
+        "cross_correlation_db": 15.0,  # a peak this much weaker than another PRN's, at its Doppler, is cross-talk
+    },
+    "tracking": {
+        "channels": 12,
+        "pll_bw_hz": 18.0,
+        "fll_bw_hz": 10.0,
+        "dll_bw_hz": 2.0,
+        "spacing_chips": 0.5,
+        "pull_in_ms": 500,
+        "min_cn0_dbhz": 25.0,
+    },
+    "pvt": {
+        "rate_hz": 10.0,
+        "elevation_mask_deg": 5.0,
+        "ionosphere": True,
+        "troposphere": True,
+    },
+    "output": {
+        "formats": ["csv", "nmea", "gpx", "geojson"],
+    },
+}

@@ -1,0 +1,61 @@
+"""Early/prompt/late correlation over one code period: the numba kernel and its numpy reference.
+
+A block starts at the sample where the code phase is `code_phase_chips` (close to 0: the start of a code period)
+and spans the samples up to the next code epoch. The carrier replica is wiped off with a 4096-entry table.
+"""
+
+import numpy as np
+from numba import njit
+
+from ..gps.constants import CA_CODE_LENGTH_CHIPS
+
+TABLE_BITS = 12
+# exp(-j 2 pi phase) at the centre of each table cell: the wipe-off of a carrier with that phase
+WIPE_TABLE = np.exp(-2j * np.pi * (np.arange(1 << TABLE_BITS) + 0.5) / (1 << TABLE_BITS)).astype(np.complex64)
+
+
+def extended_code(code: np.ndarray) -> np.ndarray:
+    """The +/-1 code with one chip of wrap-around on each side, so early and late need no modulo (index + 1)."""
+    return np.concatenate([code[-1:], code, code[:1]]).astype(np.float32)
+
+
+@njit(cache=True, nogil=True)
+def block_length(code_phase_chips: float, code_step_chips: float) -> int:
+    """Samples from code_phase_chips up to (not including) the next code epoch."""
+    return int(np.ceil((CA_CODE_LENGTH_CHIPS - code_phase_chips) / code_step_chips))
+
+
+@njit(cache=True, nogil=True)
+def correlate_block(x, start, n, code_ext, code_phase_chips, code_step_chips, carrier_phase_cycles,
+                    carrier_step_cycles, half_spacing_chips, table):
+    """(E, P, L) over x[start:start+n]; carrier phase in cycles at x[start], steps per sample."""
+    n_table = table.size
+    e_re = e_im = p_re = p_im = l_re = l_im = 0.0
+    ph = carrier_phase_cycles - np.floor(carrier_phase_cycles)
+    step = carrier_step_cycles - np.floor(carrier_step_cycles)
+    for k in range(n):
+        pos = code_phase_chips + k * code_step_chips
+        w = x[start + k] * table[np.int64(ph * n_table)]
+        pe = code_ext[np.int64(np.floor(pos + half_spacing_chips)) + 1]
+        pp = code_ext[np.int64(np.floor(pos)) + 1]
+        pl = code_ext[np.int64(np.floor(pos - half_spacing_chips)) + 1]
+        e_re += pe * w.real
+        e_im += pe * w.imag
+        p_re += pp * w.real
+        p_im += pp * w.imag
+        l_re += pl * w.real
+        l_im += pl * w.imag
+        ph += step
+        if ph >= 1.0:
+            ph -= 1.0
+    return complex(e_re, e_im), complex(p_re, p_im), complex(l_re, l_im)
+
+
+def correlate_block_reference(x, code, code_phase_chips, code_step_chips, carrier_phase_cycles, carrier_step_cycles,
+                              half_spacing_chips):
+    """The same sums with numpy and an exact exponential (slow; for tests)."""
+    k = np.arange(x.size)
+    pos = code_phase_chips + k * code_step_chips
+    wiped = x * np.exp(-2j * np.pi * (carrier_phase_cycles + k * carrier_step_cycles))
+    chip = lambda offset: code[np.floor(pos + offset).astype(np.int64) % CA_CODE_LENGTH_CHIPS]
+    return tuple(complex(np.sum(wiped * chip(o))) for o in (half_spacing_chips, 0.0, -half_spacing_chips))

@@ -1,0 +1,41 @@
+"""Plain data passed between the receiver's blocks."""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..gps.ephemeris import Ephemeris
+
+
+@dataclass(frozen=True)
+class Observation:
+    """One satellite's measurement at a common reception instant."""
+    prn: int
+    pseudorange_m: float      # c * (t_rx - t_sv): receiver clock bias included, no corrections applied
+    t_sv_s: float             # transmit time read from the signal (satellite clock), GPS seconds of week
+    doppler_hz: float         # carrier Doppler (positive when the satellite approaches)
+    cn0_dbhz: float
+    ephemeris: Ephemeris
+    weight: float = 1.0       # relative weight for least squares (e.g. from C/N0 and elevation)
+
+
+@dataclass(frozen=True)
+class Fix:
+    """A position/velocity/time solution."""
+    t_rx_s: float             # receiver time: seconds since the first sample of the input
+    gps_week: int
+    gps_tow_s: float          # GPS time of the fix (receiver clock bias removed)
+    pos_ecef_m: np.ndarray
+    vel_ecef_m_s: np.ndarray
+    clock_bias_m: float       # c * receiver clock bias
+    clock_drift_m_s: float    # c * receiver clock drift
+    lat_deg: float
+    lon_deg: float
+    height_m: float
+    n_sats: int
+    prns: tuple[int, ...]
+    pdop: float
+    hdop: float
+    vdop: float
+    residual_rms_m: float
+    state: str = "nominal"    # nominal | spoofing_detected | recovering | recovered (the defence sets the others)
