@@ -137,7 +137,7 @@ def _print_run_summary(summary) -> None:
     s = summary.stats
     click.echo(f"processed {summary.duration_s:.1f} s of signal in {summary.wall_s:.1f} s "
                f"({summary.duration_s / max(summary.wall_s, 1e-9):.2f}x real time)")
-    click.echo(f"  acquired PRNs: {' '.join(map(str, sorted(s.acquired)))}; subframes decoded {s.subframes}, "
+    click.echo(f"  tracked PRNs: {' '.join(map(str, sorted(s.confirmed)))}; subframes decoded {s.subframes}, "
                f"parity errors {s.parity_errors}")
     if summary.last_fix is None:
         click.echo("  no fix: fewer than four satellites with ephemeris and time (a fix needs ~30 s of signal, or "

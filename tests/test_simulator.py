@@ -109,13 +109,17 @@ def test_attacker_peak_sits_at_its_truth_and_is_stronger(tmp_path):
         assert abs(peak.doppler_hz - s["doppler_hz"]) < 100
 
 
-def test_static_offset_moves_pseudoranges_by_the_geometry(tmp_path):
-    """Spoofed minus legitimate pseudorange = range difference from the claimed point (1 km east) + a common term."""
-    _, rows = simulate(tmp_path, "geom", "attacker.enabled=true", "attacker.offset_east_m=1000.0", duration=0.02)
+@pytest.mark.parametrize("time_offset_s", [0.0, 5e-6])
+def test_static_offset_moves_pseudoranges_by_the_geometry(tmp_path, time_offset_s):
+    """Spoofed minus legitimate pseudorange = range difference from the claimed point (1 km east) + the spoofer's
+    clock offset, common to all PRNs."""
+    _, rows = simulate(tmp_path, "geom", "attacker.enabled=true", "attacker.offset_east_m=1000.0",
+                       f"attacker.time_offset_s={time_offset_s}", duration=0.02)
     legit = {int(r["prn"]): r for r in rows if r["source"] == "legit" and r["t_rx_s"] == 0.0}
     spoof = {int(r["prn"]): r for r in rows if r["source"] == "spoof" and r["t_rx_s"] == 0.0}
     common = sorted(set(legit) & set(spoof))
     diffs = np.array([spoof[p]["pseudorange_m"] - legit[p]["pseudorange_m"] for p in common])
+    diffs -= SPEED_OF_LIGHT_M_S * time_offset_s
     assert np.all(np.abs(diffs) <= 1000.0 + 5.0), diffs
     assert np.ptp(diffs) > 100.0, "a 1 km offset must move the pseudoranges differently per satellite"
 

@@ -33,6 +33,7 @@ class RunStats:
     n_fixes: int = 0
     first_fix_t_rx_s: float | None = None
     acquired: set = field(default_factory=set)
+    confirmed: set = field(default_factory=set)   # tracked to bit synchronisation: a real, modulated signal
     subframes: int = 0
     parity_errors: int = 0
     samples: int = 0
@@ -172,6 +173,9 @@ class Receiver:
         return None
 
     def _decode(self, prn: int, ch: Channel) -> None:
+        if ch.bits.edge_ms is not None and prn not in self.stats.confirmed:
+            self.stats.confirmed.add(prn)
+            self._emit("bit_sync", ch.st[NEXT_SAMPLE] / self.fs_hz, prn=prn, edge_ms=ch.bits.edge_ms)
         soft, first = ch.take_bits()
         if soft.size == 0:
             return
@@ -185,7 +189,7 @@ class Receiver:
         dec = self.decoders[prn]
         if dec.iono is not None and self.iono is None:
             self.iono, self.utc = dec.iono, dec.utc
-            self._emit("iono_utc", ch.ms * 1e-3, prn=prn)
+            self._emit("iono_utc", ch.st[NEXT_SAMPLE] / self.fs_hz, prn=prn)
         if dec.ephemeris is not None and self._week is None:
             self._week = dec.ephemeris.week
 

@@ -82,8 +82,8 @@ def run_file(path: str | Path, fmt: str | None, fs_hz: float | None, if_hz: floa
                 live_ctx.stop()
     summary = RunSummary(receiver.stats, receiver.last_fix, reader.n_samples / reader.fs_hz,
                          time.perf_counter() - t0, reader.truncated_bytes, out_dir)
-    if not receiver.stats.acquired:
-        raise NoSignal(f"no satellite acquired in {path}: check --fs ({reader.fs_hz:g} Hz), --format "
+    if not receiver.stats.confirmed:
+        raise NoSignal(f"no satellite signal could be tracked in {path}: check --fs ({reader.fs_hz:g} Hz), --format "
                        f"({reader.fmt.name}) and --if ({reader.if_hz:g} Hz); outputs in {out_dir}")
     return summary
 
