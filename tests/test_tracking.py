@@ -60,7 +60,7 @@ def test_track_kernel_equals_its_reference(one_satellite):
     prm = loop_params(FS, 0.0, LoopConfig(), pull_in=True)
     st_fast, st_slow = st0.copy(), st0.copy()
     n = 290
-    outs = [np.empty(n, dtype=np.complex128) for _ in range(3)] + [np.empty(n) for _ in range(3)]
+    outs = [np.empty(n, dtype=np.complex128) for _ in range(3)] + [np.empty(n) for _ in range(3)] + [np.empty((n, 6))]
     m = track_kernel(x, 0, st_fast, prm, extended_code(ca_code(int(t0["prn"]))), WIPE_TABLE, *outs)
     ref = track_reference(x, 0, st_slow, prm, ca_code(int(t0["prn"])), n)
     assert m == len(ref) == n

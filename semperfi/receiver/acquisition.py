@@ -57,6 +57,17 @@ class Caf:
         return self.peaks[0].metric / float(np.mean(self.power)) if self.peaks else 0.0
 
 
+def is_cross_correlation(doppler_hz: float, cn0_dbhz: float, stronger: Iterable[tuple[float, float]],
+                         margin_db: float, tolerance_hz: float = 200.0) -> bool:
+    """Whether a peak is another PRN's signal seen through the codes' cross-correlation.
+
+    C/A cross-correlation is coherent when two Dopplers differ by a multiple of 1 kHz and lies 21 dB or more below
+    the stronger signal; stronger holds the (Doppler, C/N0) of the other signals present.
+    """
+    return any(cn0 - cn0_dbhz > margin_db and abs((dop - doppler_hz + 500.0) % 1000.0 - 500.0) < tolerance_hz
+               for dop, cn0 in stronger)
+
+
 def _local_replica_fft(prn: int, n: int, fs_hz: float) -> np.ndarray:
     chips = np.floor(np.arange(n) * CA_CHIP_RATE_HZ / fs_hz).astype(np.int64) % CA_CODE_LENGTH_CHIPS
     return scipy.fft.fft(ca_code(prn)[chips].astype(np.complex64))

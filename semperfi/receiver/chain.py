@@ -6,15 +6,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..gps.constants import SECONDS_PER_WEEK, SPEED_OF_LIGHT_M_S
+from ..gps.ephemeris import IonoParams
+from ..gps.constants import L1_WAVELENGTH_M, SECONDS_PER_WEEK, SPEED_OF_LIGHT_M_S
 from ..gps.time import GpsTime, wrap_week_s
-from .acquisition import Caf, DopplerGrid, acquire
+from .acquisition import Caf, DopplerGrid, acquire, is_cross_correlation
 from .navigation import AssistedNav, NavDecoder
 from .pvt import solve
 from .tracking import NEXT_SAMPLE, Channel, LoopConfig, initial_state
 from .types import Fix, Observation
 
 TYPICAL_FLIGHT_S = 0.075       # first guess of the signals' travel time, to start the receiver clock
+# Klobuchar coefficients to use until subframe 4 page 18 (broadcast every 12.5 min) has been decoded: RTKLIB's
+# defaults, a typical set; far better than no ionosphere model at all.
+FALLBACK_IONO = IonoParams((0.1118e-07, -0.7451e-08, -0.5961e-07, 0.1192e-06), (0.1167e+06, -0.2294e+06, -0.1311e+06, 0.1049e+07))
 
 
 @dataclass
@@ -86,12 +90,10 @@ class Receiver:
 
     def _is_cross_talk(self, caf: Caf, cafs: dict[int, Caf]) -> bool:
         """A weak peak at the Doppler (mod 1 kHz) of a much stronger PRN is that PRN's cross-correlation."""
-        b = caf.best
-        margin = self.cfg["acquisition"]["cross_correlation_db"]
         stronger = [(o.best.doppler_hz, o.best.cn0_dbhz) for o in cafs.values() if o.best and o.prn != caf.prn]
         stronger += [(ch.doppler_at(0), ch.cn0_dbhz) for ch in self.channels.values()]   # signals in track too
-        return any(cn0 - b.cn0_dbhz > margin and abs((dop - b.doppler_hz + 500.0) % 1000.0 - 500.0) < 150.0
-                   for dop, cn0 in stronger)
+        return is_cross_correlation(caf.best.doppler_hz, caf.best.cn0_dbhz, stronger,
+                                    self.cfg["acquisition"]["cross_correlation_db"])
 
     def _acquire(self) -> None:
         start = self._base + self._buf.size - self.acq_samples
@@ -165,10 +167,8 @@ class Receiver:
             return None
         margin = self.cfg["acquisition"]["cross_correlation_db"]
         for other_prn, other in self.channels.items():
-            if other_prn == prn or other.pull_in:
-                continue
-            df = abs((other.doppler_at(0) - ch.doppler_at(0) + 500.0) % 1000.0 - 500.0)
-            if other.cn0_dbhz - ch.cn0_dbhz > margin and df < 20.0:
+            if other_prn != prn and not other.pull_in and is_cross_correlation(
+                    ch.doppler_at(0), ch.cn0_dbhz, [(other.doppler_at(0), other.cn0_dbhz)], margin, 20.0):
                 return other_prn
         return None
 
@@ -210,8 +210,8 @@ class Receiver:
             self._next_epoch += 1
             self._fix_at(sample)
 
-    def observations_at(self, sample: float) -> list[tuple[int, float, float, float, object]]:
-        """(prn, t_sv_s, doppler_hz, cn0_dbhz, ephemeris) for every channel that can say its transmit time."""
+    def observations_at(self, sample: float) -> list[tuple[int, float, float, float, object, Channel]]:
+        """(prn, t_sv_s, doppler_hz, cn0_dbhz, ephemeris, channel) for every channel that can say its transmit time."""
         out = []
         for prn, ch in self.channels.items():
             anchor = self.decoders[prn].time_anchor
@@ -225,8 +225,26 @@ class Receiver:
             eph = self._ephemeris(prn, t_sv)
             if eph is None:
                 continue
-            out.append((prn, t_sv, ch.doppler_at(sample), float(ch.cn0_dbhz), eph))
+            out.append((prn, t_sv, ch.doppler_at(sample), float(ch.cn0_dbhz), eph, ch))
         return out
+
+    def _smoothed_m(self, ch: Channel, sample: float, pseudorange_m: float) -> float:
+        """Carrier-smoothed pseudorange (Hatch filter): the code's noise averaged over smoothing_s, the carrier's
+        precise range change carried along. Restarts with every new channel (a loss of lock makes a new one)."""
+        window = int(self.cfg["pvt"]["smoothing_s"] * self.cfg["pvt"]["rate_hz"])
+        cycles = ch.carrier_cycles_at(sample)
+        if window <= 1 or cycles is None:
+            return pseudorange_m
+        state = getattr(ch, "hatch", None)
+        if state is None or abs(pseudorange_m - state[0]) > 300.0:   # first epoch, or a jump: restart
+            ch.hatch = (pseudorange_m, cycles, 1)
+            return pseudorange_m
+        prev, prev_cycles, n = state
+        n = min(n + 1, window)
+        predicted = prev - L1_WAVELENGTH_M * (cycles - prev_cycles)
+        smoothed = pseudorange_m / n + predicted * (n - 1) / n
+        ch.hatch = (smoothed, cycles, n)
+        return smoothed
 
     def _fix_at(self, sample: float) -> None:
         raw = self.observations_at(sample)
@@ -235,11 +253,11 @@ class Receiver:
         if self._t_rx0 is None:   # start the receiver clock so the pseudoranges come out near 20 000 km
             self._t_rx0 = max(r[1] for r in raw) + TYPICAL_FLIGHT_S - sample / self.fs_hz
         t_rx = (self._t_rx0 + sample / self.fs_hz) % SECONDS_PER_WEEK
-        obs = [Observation(prn, SPEED_OF_LIGHT_M_S * wrap_week_s(t_rx - t_sv), t_sv, dop, cn0, eph,
-                           weight=10 ** (min(cn0, 50.0) / 10) / 10 ** 4.5)
-               for prn, t_sv, dop, cn0, eph in raw if np.isfinite(cn0)]
+        obs = [Observation(prn, self._smoothed_m(ch, sample, SPEED_OF_LIGHT_M_S * wrap_week_s(t_rx - t_sv)), t_sv,
+                           dop, cn0, eph, weight=10 ** (min(cn0, 50.0) / 10) / 10 ** 4.5)
+               for prn, t_sv, dop, cn0, eph, ch in raw if np.isfinite(cn0)]
         p = self.cfg["pvt"]
-        fix = solve(obs, sample / self.fs_hz, self._week, self.iono if p["ionosphere"] else None,
+        fix = solve(obs, sample / self.fs_hz, self._week, (self.iono or FALLBACK_IONO) if p["ionosphere"] else None,
                     troposphere=p["troposphere"], prior=self.last_fix, elevation_mask_deg=p["elevation_mask_deg"])
         if fix is None:
             return

@@ -10,7 +10,7 @@ DEFAULTS: dict = {
         "pfa": 1e-3,                # false-alarm probability of one PRN's whole search
         "max_peaks": 8,
         "reacquire_s": 5.0,         # how often untracked PRNs are searched again
-        "cross_correlation_db": 15.0,  # a peak this much weaker than another PRN's, at its Doppler, is cross-talk
+        "cross_correlation_db": 10.0,  # a peak this much weaker than another PRN's, at its Doppler, is cross-talk
     },
     "tracking": {
         "channels": 12,
@@ -26,6 +26,7 @@ DEFAULTS: dict = {
         "elevation_mask_deg": 5.0,
         "ionosphere": True,
         "troposphere": True,
+        "smoothing_s": 20.0,        # carrier smoothing (Hatch filter) of pseudoranges; 0 = off
     },
     "output": {
         "formats": ["csv", "nmea", "gpx", "geojson"],

@@ -18,6 +18,7 @@ N_STATE = 10
 # loop parameters (float64)
 FS, IF, HALF_SPACING, PLL_WN, FLL_WN, DLL_K, T_INT = range(7)
 N_PARAM = 7
+BLOCK_COLUMNS = 6   # first sample, samples, code phase, code step, carrier phase, carrier step (per code period)
 
 
 @dataclass(frozen=True)
@@ -27,18 +28,20 @@ class LoopConfig:
     dll_bw_hz: float = 2.0
     spacing_chips: float = 0.5     # early-late distance
     pull_in_ms: int = 500
+    dll_narrow_bw_hz: float = 0.0  # when > 0: the DLL narrows to this after narrow_after_ms (gear shift)
+    narrow_after_ms: int = 1500
     lock_window_ms: int = 200
     min_cn0_dbhz: float = 25.0
     min_carrier_lock: float = 0.4
     lost_windows: int = 3          # consecutive bad windows before the channel declares loss of lock
 
 
-def loop_params(fs_hz: float, if_hz: float, cfg: LoopConfig, pull_in: bool) -> np.ndarray:
+def loop_params(fs_hz: float, if_hz: float, cfg: LoopConfig, pull_in: bool, narrow: bool = False) -> np.ndarray:
     prm = np.zeros(N_PARAM)
     prm[FS], prm[IF], prm[HALF_SPACING] = fs_hz, if_hz, cfg.spacing_chips / 2
     prm[PLL_WN] = cfg.pll_bw_hz / 0.53            # 2nd-order loop: Bn = 0.53 w0
     prm[FLL_WN] = 4.0 * cfg.fll_bw_hz if pull_in else 0.0   # 1st-order FLL: Bn = w0 / 4
-    prm[DLL_K] = 4.0 * cfg.dll_bw_hz              # 1st-order DLL: Bn = K / 4
+    prm[DLL_K] = 4.0 * (cfg.dll_narrow_bw_hz if narrow and cfg.dll_narrow_bw_hz > 0 else cfg.dll_bw_hz)  # Bn = K/4
     prm[T_INT] = 1e-3
     return prm
 
@@ -65,11 +68,14 @@ def loop_update(st, prm, e, p, l):
 
 
 @njit(cache=True, nogil=True)
-def track_kernel(x, base_sample, st, prm, code_ext, table, out_e, out_p, out_l, out_epoch, out_doppler, out_carr):
+def track_kernel(x, base_sample, st, prm, code_ext, table, out_e, out_p, out_l, out_epoch, out_doppler, out_carr,
+                 out_block):
     """Track through x (whose first sample is absolute index base_sample) while whole code periods remain.
 
     Each period's E/P/L, the absolute (fractional) sample index of its code epoch, the Doppler and the accumulated
-    carrier phase at that epoch are written to the out arrays; returns how many periods were processed.
+    carrier phase at that epoch are written to the out arrays, and the replica that was correlated to out_block
+    (first sample, samples, code phase, code step, carrier phase, carrier step: what a canceller needs to rebuild
+    it); returns how many periods were processed.
     """
     fs = prm[FS]
     m = 0
@@ -88,6 +94,8 @@ def track_kernel(x, base_sample, st, prm, code_ext, table, out_e, out_p, out_l, 
         out_epoch[m] = st[NEXT_SAMPLE] - cp / step
         out_doppler[m] = st[CARR_FREQ]
         out_carr[m] = st[CARR_TOTAL]
+        out_block[m, 0], out_block[m, 1], out_block[m, 2] = st[NEXT_SAMPLE], n, cp
+        out_block[m, 3], out_block[m, 4], out_block[m, 5] = step, st[CARR_PHASE], carr_step
         ph = st[CARR_PHASE] + n * carr_step
         st[CARR_PHASE] = ph - np.floor(ph)
         st[CARR_TOTAL] += n * st[CARR_FREQ] / fs
@@ -213,6 +221,7 @@ class Channel:
         max_ms = x.size // int(self.fs_hz * 1e-3 * 0.9) + 2
         out_e, out_p, out_l = (np.empty(max_ms, dtype=np.complex128) for _ in range(3))
         out_epoch, out_dopp, out_carr = (np.empty(max_ms) for _ in range(3))
+        out_block = np.empty((max_ms, BLOCK_COLUMNS))
         prm = loop_params(self.fs_hz, self.if_hz, self.cfg, self.pull_in)
         first = self.ms
         m = 0
@@ -220,11 +229,13 @@ class Channel:
         if self.pull_in:
             limit = min(max_ms, self.cfg.pull_in_ms - self.ms)
             m = track_kernel(x, base_sample, self.st, prm, self.code_ext, WIPE_TABLE, out_e[:limit], out_p[:limit],
-                             out_l[:limit], out_epoch[:limit], out_dopp[:limit], out_carr[:limit])
+                             out_l[:limit], out_epoch[:limit], out_dopp[:limit], out_carr[:limit], out_block[:limit])
             prm = loop_params(self.fs_hz, self.if_hz, self.cfg, False)
+        if self.ms >= self.cfg.narrow_after_ms:
+            prm = loop_params(self.fs_hz, self.if_hz, self.cfg, False, narrow=True)
         if m < max_ms:
             m += track_kernel(x, base_sample, self.st, prm, self.code_ext, WIPE_TABLE, out_e[m:], out_p[m:], out_l[m:],
-                              out_epoch[m:], out_dopp[m:], out_carr[m:])
+                              out_epoch[m:], out_dopp[m:], out_carr[m:], out_block[m:])
         idx = (first + np.arange(m)) % self.HISTORY_MS
         self.epoch_sample[idx], self.doppler_hz[idx] = out_epoch[:m], out_dopp[:m]
         self.carrier_cycles[idx], self.prompt[idx] = out_carr[:m], out_p[:m]
@@ -232,6 +243,7 @@ class Channel:
         self._update_lock(out_p[:m])
         if not self.pull_in:
             self.bits.push(out_p[:m].real, first)
+        self.last_blocks = out_block[:m]
         return out_p[:m], first
 
     def _update_lock(self, prompt: np.ndarray) -> None:
@@ -268,21 +280,37 @@ class Channel:
     def ms_of_bit(self, bit_index: int) -> int:
         return self.bits.edge_ms + 20 * bit_index
 
-    def transmit_time_at(self, sample: float, ms_ref: int, t_sv_ref_s: float) -> float | None:
-        """Satellite time of the signal at an absolute sample index, given that code period ms_ref began at t_sv_ref.
-
-        Interpolates between the code epochs around the sample; None when they are not in the history.
-        """
+    def _epoch_around(self, sample: float) -> tuple[int, float] | None:
+        """(ms index j, fraction) with code epoch j at or before the sample and epoch j + 1 after it."""
         lo = max(self.ms - self.HISTORY_MS + 1, 0)
         if self.ms - lo < 2:
             return None
         idx = np.arange(lo, self.ms)
         epochs = self.epoch_sample[idx % self.HISTORY_MS]
-        j = int(np.searchsorted(epochs, sample, side="right")) - 1
-        if j < 0 or j + 1 >= idx.size:
+        k = int(np.searchsorted(epochs, sample, side="right")) - 1
+        if k < 0 or k + 1 >= idx.size:
             return None
-        frac = (sample - epochs[j]) / (epochs[j + 1] - epochs[j])
-        return t_sv_ref_s + (idx[j] - ms_ref + frac) * 1e-3
+        return int(idx[k]), float((sample - epochs[k]) / (epochs[k + 1] - epochs[k]))
+
+    def transmit_time_at(self, sample: float, ms_ref: int, t_sv_ref_s: float) -> float | None:
+        """Satellite time of the signal at an absolute sample index, given that code period ms_ref began at t_sv_ref.
+
+        Interpolates between the code epochs around the sample; None when they are not in the history.
+        """
+        around = self._epoch_around(sample)
+        if around is None:
+            return None
+        j, frac = around
+        return t_sv_ref_s + (j - ms_ref + frac) * 1e-3
+
+    def carrier_cycles_at(self, sample: float) -> float | None:
+        """Accumulated carrier Doppler phase (cycles) at a sample: the integrated Doppler, for carrier smoothing."""
+        around = self._epoch_around(sample)
+        if around is None:
+            return None
+        j, frac = around
+        a, b = self.carrier_cycles[j % self.HISTORY_MS], self.carrier_cycles[(j + 1) % self.HISTORY_MS]
+        return float(a + frac * (b - a))
 
     def doppler_at(self, sample: float) -> float:
         i = (self.ms - 1) % self.HISTORY_MS

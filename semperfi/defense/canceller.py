@@ -1,0 +1,235 @@
+"""The Legitimate Signal Retriever: successive interference cancellation of the spoofer's signals.
+
+For every adversarial peak a tracking channel follows the spoofer's signal (code, carrier, data bits); each code
+period's replica is rebuilt exactly as it was correlated, its complex amplitude (amplitude, carrier phase and data
+bit at once) is the least-squares estimate P / n smoothed over neighbouring periods, and the replica times that
+amplitude is subtracted. Stages can be chained: stage k tracks what stage k - 1 left (the SIC iterations).
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+
+from ..gps.codes import ca_code
+from ..receiver.acquisition import DopplerGrid, Peak, acquire
+from ..receiver.correlator import WIPE_TABLE, extended_code
+from ..receiver.tracking import NEXT_SAMPLE, Channel, LoopConfig, initial_state
+
+MOD_TABLE = np.conj(WIPE_TABLE)   # exp(+j 2 pi phase): the carrier as transmitted
+
+
+@njit(cache=True, nogil=True)
+def _subtract_kernel(x, base_sample, blocks, amplitudes, code_ext, table):
+    n_table = table.size
+    for m in range(blocks.shape[0]):
+        start = np.int64(blocks[m, 0]) - base_sample
+        n, cp, step = np.int64(blocks[m, 1]), blocks[m, 2], blocks[m, 3]
+        ph = blocks[m, 4] - np.floor(blocks[m, 4])
+        pstep = blocks[m, 5] - np.floor(blocks[m, 5])
+        a = amplitudes[m]
+        for k in range(n):
+            i = start + k
+            if 0 <= i < x.size:
+                x[i] -= a * code_ext[np.int64(np.floor(cp + k * step)) + 1] * table[np.int64(ph * n_table)]
+            ph += pstep
+            if ph >= 1.0:
+                ph -= 1.0
+
+
+def subtract_replicas(x: np.ndarray, base_sample: int, blocks: np.ndarray, amplitudes: np.ndarray, prn: int) -> None:
+    """x -= sum over code periods of amplitude * code * carrier, the replicas described by tracking's blocks."""
+    _subtract_kernel(x, base_sample, blocks, amplitudes.astype(np.complex128), extended_code(ca_code(prn)), MOD_TABLE)
+
+
+def replicas_reference(n_samples: int, base_sample: int, blocks, amplitudes, prn: int) -> np.ndarray:
+    """The same replicas with numpy and an exact exponential (slow; for tests)."""
+    out = np.zeros(n_samples, dtype=np.complex128)
+    code = ca_code(prn)
+    for (first, n, cp, step, ph, pstep), a in zip(blocks, amplitudes):
+        k = np.arange(int(n))
+        idx = int(first) - base_sample + k
+        ok = (idx >= 0) & (idx < n_samples)
+        chips = np.floor(cp + k * step).astype(np.int64) % 1023
+        out[idx[ok]] += (a * code[chips] * np.exp(2j * np.pi * (ph + k * pstep)))[ok]
+    return out
+
+
+@dataclass(frozen=True)
+class CancellerConfig:
+    # The replica's code phase error is what limits the attenuation (an error of e chips leaves 2e of the power):
+    # a narrow correlator (its E-L zero is not pulled by where samples fall on the chips) and, once settled, a
+    # narrow loop.
+    dll_bw_hz: float = 2.0
+    narrow_dll_bw_hz: float = 0.5
+    narrow_after_ms: int = 1000
+    spacing_chips: float = 0.1
+    pll_bw_hz: float = 15.0
+    pull_in_ms: int = 300          # nothing is subtracted while the loops settle
+    smoothing_ms: int = 16         # time constant of the amplitude/phase estimate
+    max_stages: int = 3
+    refine_doppler_hz: float = 300.0
+
+
+def refine_peak(samples: np.ndarray, fs_hz: float, if_hz: float, peak: Peak) -> Peak:
+    """The adversarial peak on a narrow fine grid (25 Hz, 5 ms coherent), keeping to its own code phase."""
+    grid = DopplerGrid(peak.doppler_hz, 300.0, 25.0)
+    caf = acquire(samples, fs_hz, [peak.prn], grid, if_hz, coherent_ms=5, noncoherent=2, pfa=1e-2, max_peaks=8)[peak.prn]
+    near = [p for p in caf.peaks if abs((p.code_phase_chips - peak.code_phase_chips + 511.5) % 1023 - 511.5) < 0.6]
+    return near[0] if near else peak
+
+
+class AdversaryTrack:
+    """One spoofed signal followed and cancelled, with what it measured of its own cancellation."""
+
+    def __init__(self, prn: int, fs_hz: float, if_hz: float, peak: Peak, peak_sample: int, start_after_sample: int,
+                 cfg: CancellerConfig, stage: int):
+        self.prn, self.stage, self.cfg = prn, stage, cfg
+        loop = LoopConfig(pll_bw_hz=cfg.pll_bw_hz, dll_bw_hz=cfg.dll_bw_hz, pull_in_ms=cfg.pull_in_ms,
+                          min_cn0_dbhz=20.0, dll_narrow_bw_hz=cfg.narrow_dll_bw_hz,
+                          narrow_after_ms=cfg.narrow_after_ms, spacing_chips=cfg.spacing_chips)
+        st = initial_state(peak.code_phase_chips, peak_sample, peak.doppler_hz, fs_hz, start_after_sample)
+        self.channel = Channel(prn, fs_hz, if_hz, st, loop)
+        self._ref = 0j                 # smoothed complex amplitude (bit removed)
+        self._lam = 1.0 / cfg.smoothing_ms
+        self._acc_signal = self._acc_residual = self._acc_noise = 0.0
+        self._acc_n = 0
+        self.attenuation_db: list[float] = []   # one value per report window
+
+    @property
+    def next_sample(self) -> float:
+        return float(self.channel.st[NEXT_SAMPLE])
+
+    def process(self, tracked: np.ndarray, work: np.ndarray, base_sample: int) -> None:
+        """Track the spoofer through `tracked` and subtract its replica from `work` (same samples, cleaned so far)."""
+        ch = self.channel
+        settled_before = not ch.pull_in
+        prompts, _ = ch.process(tracked, base_sample)
+        blocks = ch.last_blocks
+        if prompts.size == 0:
+            return
+        alphas = prompts / blocks[:, 1]                       # least squares: the replica has unit modulus
+        est = np.empty_like(alphas)
+        ref = self._ref if self._ref != 0 else alphas[0]
+        for i, a in enumerate(alphas):                       # decision-directed: the bit is a's sign against ref
+            bit = 1.0 if (a * np.conj(ref)).real >= 0 else -1.0
+            ref = ref + self._lam * (a * bit - ref)
+            est[i] = ref * bit
+        self._ref = ref
+        if not settled_before:
+            return
+        subtract_replicas(work, base_sample, blocks, est, self.prn)
+        self._measure(work, base_sample, blocks, est)
+
+    def _measure(self, work, base_sample, blocks, est) -> None:
+        """What is left at the replica: the attenuation this track achieves (noise-corrected powers)."""
+        code = self.channel.code_ext
+        for (first, n, cp, step, ph, pstep), a in zip(blocks, est):
+            i0 = int(first) - base_sample
+            k = np.arange(int(n))
+            if i0 < 0 or i0 + n > work.size:
+                continue
+            r = code[np.floor(cp + k * step).astype(np.int64) + 1] * np.exp(2j * np.pi * (ph + k * pstep))
+            seg = work[i0:i0 + int(n)]
+            beta = np.vdot(r, seg) / n
+            self._acc_signal += abs(a) ** 2
+            self._acc_residual += abs(beta) ** 2
+            self._acc_noise += float(np.mean(np.abs(seg) ** 2)) / n
+            self._acc_n += 1
+        if self._acc_n >= 1000:
+            residual = max(self._acc_residual - self._acc_noise, 1e-6 * self._acc_signal)
+            self.attenuation_db.append(float(10 * np.log10(self._acc_signal / residual)))
+            self._acc_signal = self._acc_residual = self._acc_noise = 0.0
+            self._acc_n = 0
+
+
+@dataclass
+class CancellerStage:
+    """One SIC iteration as a streaming filter: samples in, the same samples less its tracks' replicas out."""
+    fs_hz: float
+    if_hz: float
+    index: int
+    cfg: CancellerConfig = field(default_factory=CancellerConfig)
+
+    def __post_init__(self):
+        self.tracks: dict[int, AdversaryTrack] = {}
+        self._raw = np.empty(0, dtype=np.complex64)
+        self._work = np.empty(0, dtype=np.complex64)
+        self.base = 0                 # absolute index of _raw[0]
+
+    @property
+    def end_sample(self) -> int:
+        return self.base + self._raw.size
+
+    def add(self, peak: Peak, peak_sample: int) -> AdversaryTrack:
+        track = AdversaryTrack(peak.prn, self.fs_hz, self.if_hz, peak, peak_sample, self.end_sample, self.cfg,
+                               self.index)
+        self.tracks[peak.prn] = track
+        return track
+
+    def push(self, chunk: np.ndarray) -> np.ndarray:
+        self._raw = np.concatenate([self._raw, chunk])
+        self._work = np.concatenate([self._work, chunk])
+        for prn, tr in list(self.tracks.items()):
+            tr.process(self._raw, self._work, self.base)
+            if not tr.channel.locked:   # the spoofer went away (or was never there)
+                del self.tracks[prn]
+        done = min([int(tr.next_sample) for tr in self.tracks.values()] + [self.end_sample])
+        n = max(0, done - self.base)
+        out = self._work[:n]
+        self._raw, self._work = self._raw[n:], self._work[n:].copy()
+        self.base += n
+        return out
+
+    def flush(self) -> np.ndarray:
+        out = self._work
+        self.base += out.size
+        self._raw = self._work = np.empty(0, dtype=np.complex64)
+        return out
+
+
+class Canceller:
+    """The whole LSR: a pipeline of stages; start() cancels a new adversarial peak, iterate() adds a stage."""
+
+    def __init__(self, fs_hz: float, if_hz: float = 0.0, cfg: CancellerConfig = CancellerConfig()):
+        self.fs_hz, self.if_hz, self.cfg = fs_hz, if_hz, cfg
+        self.stages: list[CancellerStage] = []
+        self._emitted = 0
+
+    @property
+    def prns(self) -> set[int]:
+        return {p for s in self.stages for p in s.tracks}
+
+    def cancel(self, peak: Peak, peak_sample: int, stage: int = 0) -> AdversaryTrack | None:
+        """Start cancelling a peak at the given stage (0 = the first pass); None past the iteration bound."""
+        if stage >= self.cfg.max_stages:
+            return None
+        while len(self.stages) <= stage:   # a new stage takes the previous one's output from its next sample on
+            st = CancellerStage(self.fs_hz, self.if_hz, len(self.stages), self.cfg)
+            st.base = self.stages[-1].base if self.stages else self._emitted
+            self.stages.append(st)
+        return self.stages[stage].add(peak, peak_sample)
+
+    def push(self, chunk: np.ndarray) -> np.ndarray:
+        """Samples in; cleaned samples out, in order, a little behind (each stage holds back a code period)."""
+        out = np.asarray(chunk, dtype=np.complex64)
+        for st in self.stages:
+            out = st.push(out)
+        self._emitted += out.size
+        return out
+
+    def flush(self) -> np.ndarray:
+        """The samples still held back, at the end of the stream."""
+        out = np.empty(0, dtype=np.complex64)
+        for st in self.stages:
+            out = np.concatenate([st.push(out), st.flush()])
+        self._emitted += out.size
+        return out
+
+    def report(self) -> dict[int, list[dict]]:
+        """Per PRN, per stage: the attenuation measured in each window so far."""
+        out: dict[int, list[dict]] = {}
+        for st in self.stages:
+            for prn, tr in st.tracks.items():
+                out.setdefault(prn, []).append({"stage": st.index, "attenuation_db": [round(a, 1) for a in tr.attenuation_db]})
+        return out

@@ -1,0 +1,126 @@
+"""Are there two signals of one PRN under a single correlation peak? A generalised likelihood ratio test.
+
+A seamless takeover starts with the spoofed peak on top of the legitimate one; the two only become separate local
+maxima of the CAF once they are about a chip apart. Modelling the samples of each 1 ms block as
+x = a c(tau1) + b c(tau2) + noise (c the sampled code, complex a and b per block), the least-squares fit of one or
+two paths is closed-form, and the energy each explains is
+
+    E1(tau)       = sum_b |y_b(tau)|^2 / K
+    E2(tau1,tau2) = sum_b y_b^H G^-1 y_b,   G = [[K, m], [m, K]],  m = <c(tau1), c(tau2)>
+
+with y_b(tau) the block's correlation with the code delayed by tau. Under one path, (max E2 - max E1) / sigma^2
+is about chi-square with 2 x blocks degrees of freedom (times 1/2), which sets the threshold.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+from scipy import stats
+
+from ..gps.codes import ca_code
+from ..gps.constants import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, L1_HZ
+
+
+@dataclass(frozen=True)
+class TwoPathFit:
+    prn: int
+    code_phase_chips: float          # the stronger path
+    second_code_phase_chips: float   # the weaker path
+    power_ratio_db: float            # weaker / stronger
+    statistic: float                 # (E2 - E1) / sigma^2
+    threshold: float
+
+    @property
+    def separation_chips(self) -> float:
+        return abs((self.second_code_phase_chips - self.code_phase_chips + 511.5) % 1023 - 511.5)
+
+    @property
+    def significant(self) -> bool:
+        return self.statistic > self.threshold
+
+
+PAD_CHIPS = 8
+
+
+@njit(cache=True, nogil=True)
+def _profile_kernel(wiped, chip_pos, offsets, code_pad, n_blocks, k):
+    """y[i, b] = sum over block b of wiped * code(chip_pos + offsets[i]); gram[i, j] over the first block."""
+    n_off = offsets.size
+    y = np.zeros((n_off, n_blocks), dtype=np.complex128)
+    for i in range(n_off):
+        for b in range(n_blocks):
+            acc_re = 0.0
+            acc_im = 0.0
+            for t in range(b * k, (b + 1) * k):
+                c = code_pad[np.int64(np.floor(chip_pos[t] + offsets[i])) + PAD_CHIPS]
+                acc_re += c * wiped[t].real
+                acc_im += c * wiped[t].imag
+            y[i, b] = complex(acc_re, acc_im)
+    gram = np.zeros((n_off, n_off))
+    for i in range(n_off):
+        for j in range(i, n_off):
+            acc = 0.0
+            for t in range(k):
+                acc += code_pad[np.int64(np.floor(chip_pos[t] + offsets[i])) + PAD_CHIPS] * \
+                    code_pad[np.int64(np.floor(chip_pos[t] + offsets[j])) + PAD_CHIPS]
+            gram[i, j] = gram[j, i] = acc
+    return y, gram
+
+
+def _wipe_and_positions(samples, fs_hz, code_phase_chips, doppler_hz, if_hz, n_blocks):
+    k = int(round(fs_hz * 1e-3))
+    n = k * n_blocks
+    t = np.arange(n)
+    step = CA_CHIP_RATE_HZ * (1.0 + doppler_hz / L1_HZ) / fs_hz
+    wiped = samples[:n] * np.exp(-2j * np.pi * (doppler_hz + if_hz) / fs_hz * t)
+    return wiped, (code_phase_chips + t * step) % CA_CODE_LENGTH_CHIPS, k
+
+
+def delay_profile(samples, fs_hz, prn, code_phase_chips, doppler_hz, if_hz, offsets_chips, n_blocks):
+    """Per-block correlations y[i, b] with the code delayed by offsets_chips[i] around code_phase_chips, and the
+    code's Gram matrix m[i, j] over one block (samples per block K = one code period)."""
+    if np.max(np.abs(offsets_chips)) >= PAD_CHIPS - 1:
+        raise ValueError(f"delay offsets beyond +/-{PAD_CHIPS - 1} chips")
+    wiped, chip_pos, k = _wipe_and_positions(samples, fs_hz, code_phase_chips, doppler_hz, if_hz, n_blocks)
+    code = ca_code(prn).astype(np.float64)
+    code_pad = np.concatenate([code[-PAD_CHIPS:], code, code[:PAD_CHIPS]])
+    y, gram = _profile_kernel(wiped, chip_pos, np.asarray(offsets_chips, dtype=np.float64), code_pad, n_blocks, k)
+    return y, gram, k
+
+
+def delay_profile_reference(samples, fs_hz, prn, code_phase_chips, doppler_hz, if_hz, offsets_chips, n_blocks):
+    """The same with plain numpy (slow; for tests)."""
+    wiped, chip_pos, k = _wipe_and_positions(samples, fs_hz, code_phase_chips, doppler_hz, if_hz, n_blocks)
+    chips = np.floor(chip_pos[None, :] + np.asarray(offsets_chips)[:, None]).astype(np.int64)
+    replicas = ca_code(prn).astype(np.float64)[chips % CA_CODE_LENGTH_CHIPS]
+    y = np.einsum("ibk,bk->ib", replicas.reshape(len(offsets_chips), n_blocks, k), wiped.reshape(n_blocks, k))
+    return y, replicas[:, :k] @ replicas[:, :k].T, k
+
+
+def two_path_test(samples, fs_hz, prn, code_phase_chips, doppler_hz, if_hz=0.0, n_blocks=20, span_chips=2.0,
+                  step_chips=0.05, pfa=1e-4, min_spacing_chips=0.2) -> TwoPathFit:
+    """The best one- and two-path fits around a peak, and whether the second path is real."""
+    offsets = np.arange(-span_chips, span_chips + 1e-9, step_chips)
+    y, gram, k = delay_profile(samples, fs_hz, prn, code_phase_chips, doppler_hz, if_hz, offsets, n_blocks)
+    noise_var = float(np.mean(np.abs(samples[:k * n_blocks]) ** 2))   # signals lie far below the noise
+    s = np.sum(np.abs(y) ** 2, axis=1)                                 # sum_b |y_b(tau_i)|^2
+    c = np.real(y @ y.conj().T)                                        # sum_b Re(y_i conj(y_j))
+    e1 = s / k
+    i1 = int(np.argmax(e1))
+    den = k * k - gram ** 2
+    spaced = np.abs(offsets[:, None] - offsets[None, :]) >= min_spacing_chips
+    with np.errstate(divide="ignore", invalid="ignore"):
+        e2 = np.where(spaced & (den > 0), (k * s[:, None] + k * s[None, :] - 2 * gram * c) / den, -np.inf)
+    i, j = np.unravel_index(int(np.argmax(e2)), e2.shape)
+    # the two paths' amplitudes (per-block LS), to tell the stronger from the weaker
+    g_inv = np.array([[k, -gram[i, j]], [-gram[i, j], k]]) / den[i, j]
+    amps = g_inv @ np.stack([y[i], y[j]])
+    p_i, p_j = float(np.mean(np.abs(amps[0]) ** 2)), float(np.mean(np.abs(amps[1]) ** 2))
+    if p_j > p_i:
+        i, j, p_i, p_j = j, i, p_j, p_i
+    statistic = float((e2.max() - e1[i1]) / noise_var)
+    n_pairs = offsets.size * (offsets.size - 1) / 2   # the maximum over pairs: Bonferroni
+    threshold = float(stats.chi2.isf(pfa / n_pairs, 2 * n_blocks) / 2)
+    return TwoPathFit(prn, float((code_phase_chips + offsets[i]) % 1023), float((code_phase_chips + offsets[j]) % 1023),
+                      float(10 * np.log10(max(p_j, 1e-30) / max(p_i, 1e-30))), statistic, threshold)
