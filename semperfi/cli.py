@@ -120,17 +120,59 @@ def acquire(file, fs_hz, fmt, if_hz, prn_text, start_s, coherent_ms, noncoherent
 @click.option("--nav", "nav_path", type=click.Path(dir_okay=False), help="RINEX navigation file (assisted mode)")
 @click.option("--out", "out_dir", default="out/run", show_default=True, type=click.Path(file_okay=False))
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), help="receiver TOML configuration")
+@click.option("--defense", type=click.Choice(["off", "detect", "full"]), help="SemperFi's defence (default off)")
+@click.option("--adversarial", help="which peak is the attacker's: auto | stronger | later | prn:LIST")
 @click.option("--set", "sets", multiple=True, metavar="SECTION.KEY=VALUE", help="override a configuration key")
-def run(file, fs_hz, fmt, if_hz, nav_path, out_dir, config_path, sets) -> None:
+def run(file, fs_hz, fmt, if_hz, nav_path, out_dir, config_path, defense, adversarial, sets) -> None:
     """Receive FILE: acquisition, tracking, navigation, PVT; fixes.csv, NMEA, GPX, GeoJSON, events.jsonl in --out."""
-    from .receiver.run import load_receiver_config, run_file
+    from .defense.defended import DefendedReceiver
+    from .receiver.run import run_file
 
+    sets = list(sets) + [f'defense.mode="{defense}"'] * bool(defense) + [f'defense.adversarial="{adversarial}"'] * bool(adversarial)
     try:
-        cfg = load_receiver_config(config_path, list(sets))
-        summary = run_file(file, fmt, fs_hz, if_hz, cfg, out_dir, nav_path, live=sys.stderr.isatty())
+        cfg = _receiver_config(config_path, sets)
+        summary = run_file(file, fmt, fs_hz, if_hz, cfg, out_dir, nav_path, live=sys.stderr.isatty(),
+                           receiver_factory=DefendedReceiver)
     except (ValueError, OSError) as exc:
         _fail(str(exc))
     _print_run_summary(summary)
+
+
+@main.command()
+@click.argument("file", type=click.Path(dir_okay=False))
+@click.option("-o", "--out", "out_path", required=True, type=click.Path(dir_okay=False), help="cleaned IQ file")
+@click.option("--fs", "fs_hz", type=float, help="sample rate, Hz (else from the SigMF sidecar)")
+@click.option("--format", "fmt", help="ibyte | ishort | gr_complex (else from the SigMF sidecar)")
+@click.option("--if", "if_hz", type=float, help="intermediate frequency, Hz")
+@click.option("--adversarial", help="which peak is the attacker's: auto | stronger | later | prn:LIST")
+@click.option("--config", "config_path", type=click.Path(dir_okay=False), help="TOML configuration")
+@click.option("--set", "sets", multiple=True, metavar="SECTION.KEY=VALUE", help="override a configuration key")
+def clean(file, out_path, fs_hz, fmt, if_hz, adversarial, config_path, sets) -> None:
+    """Plug-in filter: write FILE with the spoofer's signals cancelled to OUT (same format and rate), for any
+    receiver; events go to OUT's stem + .events.jsonl."""
+    from .defense.clean import clean_file
+
+    sets = ['defense.mode="full"'] + list(sets) + [f'defense.adversarial="{adversarial}"'] * bool(adversarial)
+    try:
+        cfg = _receiver_config(config_path, sets)
+        s = clean_file(file, out_path, fmt, fs_hz, if_hz, cfg, progress=sys.stderr.isatty())
+    except (ValueError, OSError) as exc:
+        _fail(str(exc))
+    click.echo(f"cleaned {s.duration_s:.1f} s in {s.wall_s:.1f} s into {s.out_path}")
+    click.echo(f"  alarms on PRNs {' '.join(map(str, s.alarms)) or 'none'}; cancelled {' '.join(map(str, s.cancelled)) or 'none'}; "
+               f"verified clean {' '.join(map(str, s.verified)) or 'none'}")
+    for prn, stages in sorted(s.attenuation_db.items()):
+        last = [st["attenuation_db"][-1] for st in stages if st["attenuation_db"]]
+        click.echo(f"  PRN {prn:>2}: attenuation {', '.join(map(str, last)) or 'not yet measured'} dB (per SIC stage)")
+    if s.gave_up:
+        click.echo(f"  gave up on: {s.gave_up}", err=True)
+
+
+def _receiver_config(path, sets) -> dict:
+    from . import config
+    from .defense.config import DEFAULTS as DEFENSE
+    from .receiver.config import DEFAULTS as RECEIVER
+    return config.load({**RECEIVER, **DEFENSE}, path, sets)
 
 
 def _print_run_summary(summary) -> None:

@@ -37,6 +37,31 @@ def _subtract_kernel(x, base_sample, blocks, amplitudes, code_ext, table):
                 ph -= 1.0
 
 
+@njit(cache=True, nogil=True)
+def _residual_kernel(x, base_sample, blocks, code_ext, table, out_beta, out_power):
+    """Per block: the residual's correlation with the (unit) replica, and the residual's mean power."""
+    n_table = table.size
+    for m in range(blocks.shape[0]):
+        start = np.int64(blocks[m, 0]) - base_sample
+        n, cp, step = np.int64(blocks[m, 1]), blocks[m, 2], blocks[m, 3]
+        ph = blocks[m, 4] - np.floor(blocks[m, 4])
+        pstep = blocks[m, 5] - np.floor(blocks[m, 5])
+        acc = 0j
+        power = 0.0
+        if start < 0 or start + n > x.size:
+            out_beta[m], out_power[m] = np.nan, np.nan
+            continue
+        for k in range(n):
+            v = x[start + k]
+            r = code_ext[np.int64(np.floor(cp + k * step)) + 1] * table[np.int64(ph * n_table)]
+            acc += v * np.conj(r)
+            power += v.real * v.real + v.imag * v.imag
+            ph += pstep
+            if ph >= 1.0:
+                ph -= 1.0
+        out_beta[m], out_power[m] = acc / n, power / n
+
+
 def subtract_replicas(x: np.ndarray, base_sample: int, blocks: np.ndarray, amplitudes: np.ndarray, prn: int) -> None:
     """x -= sum over code periods of amplitude * code * carrier, the replicas described by tracking's blocks."""
     _subtract_kernel(x, base_sample, blocks, amplitudes.astype(np.complex128), extended_code(ca_code(prn)), MOD_TABLE)
@@ -94,7 +119,7 @@ class AdversaryTrack:
         self._lam = 1.0 / cfg.smoothing_ms
         self._acc_signal = self._acc_residual = self._acc_noise = 0.0
         self._acc_n = 0
-        self.attenuation_db: list[float] = []   # one value per report window
+        self.attenuation_db: list[tuple[float, bool]] = []   # per ~1 s window: (dB, only a lower bound)
 
     @property
     def next_sample(self) -> float:
@@ -122,23 +147,25 @@ class AdversaryTrack:
         self._measure(work, base_sample, blocks, est)
 
     def _measure(self, work, base_sample, blocks, est) -> None:
-        """What is left at the replica: the attenuation this track achieves (noise-corrected powers)."""
-        code = self.channel.code_ext
-        for (first, n, cp, step, ph, pstep), a in zip(blocks, est):
-            i0 = int(first) - base_sample
-            k = np.arange(int(n))
-            if i0 < 0 or i0 + n > work.size:
-                continue
-            r = code[np.floor(cp + k * step).astype(np.int64) + 1] * np.exp(2j * np.pi * (ph + k * pstep))
-            seg = work[i0:i0 + int(n)]
-            beta = np.vdot(r, seg) / n
-            self._acc_signal += abs(a) ** 2
-            self._acc_residual += abs(beta) ** 2
-            self._acc_noise += float(np.mean(np.abs(seg) ** 2)) / n
-            self._acc_n += 1
+        """What is left at the replica: the attenuation this track achieves (noise-corrected powers).
+
+        Over a window of N code periods, the residual's power at the replica, less the noise's share (the
+        residual's power / n per period), against the cancelled signal's power. When what is left is below what the
+        window can resolve (about 2 noise / sqrt(N)), that resolution is reported, flagged as a lower bound.
+        """
+        beta, power = np.empty(len(blocks), dtype=np.complex128), np.empty(len(blocks))
+        _residual_kernel(work, base_sample, blocks, self.channel.code_ext, MOD_TABLE, beta, power)
+        ok = np.isfinite(power)
+        self._acc_signal += float(np.sum(np.abs(est[ok]) ** 2))
+        self._acc_residual += float(np.sum(np.abs(beta[ok]) ** 2))
+        self._acc_noise += float(np.sum(power[ok] / blocks[ok, 1]))
+        self._acc_n += int(np.sum(ok))
         if self._acc_n >= 1000:
-            residual = max(self._acc_residual - self._acc_noise, 1e-6 * self._acc_signal)
-            self.attenuation_db.append(float(10 * np.log10(self._acc_signal / residual)))
+            resolution = 2.0 * self._acc_noise / np.sqrt(self._acc_n)
+            residual = self._acc_residual - self._acc_noise
+            bound = residual < resolution
+            self.attenuation_db.append((round(float(10 * np.log10(self._acc_signal / max(residual, resolution))), 1),
+                                        bool(bound)))
             self._acc_signal = self._acc_residual = self._acc_noise = 0.0
             self._acc_n = 0
 
@@ -231,5 +258,23 @@ class Canceller:
         out: dict[int, list[dict]] = {}
         for st in self.stages:
             for prn, tr in st.tracks.items():
-                out.setdefault(prn, []).append({"stage": st.index, "attenuation_db": [round(a, 1) for a in tr.attenuation_db]})
+                out.setdefault(prn, []).append({"stage": st.index,
+                                                "attenuation_db": [f">={v}" if lower else v for v, lower in tr.attenuation_db]})
         return out
+
+
+def caf_amplitude(samples: np.ndarray, fs_hz: float, if_hz: float, prn: int, code_phase_chips: float,
+                  doppler_hz: float, n_blocks: int = 20) -> float:
+    """A signal's amplitude from its CAF peak: |a| = sqrt(S_max) / K (the paper's equation 10).
+
+    S_max, the peak's |R|^2, also holds the power of the noise and of every other signal passing through the
+    correlator, which inflates the paper's estimate at low C/N0; that share is measured at code phases far from any
+    peak of this PRN and taken out.
+    """
+    from ..receiver.cn0 import correlate_ms
+    k = int(round(fs_hz * 1e-3))
+    x = samples[:k * n_blocks]
+    peak = correlate_ms(x, fs_hz, prn, code_phase_chips, doppler_hz, if_hz)
+    off = np.concatenate([correlate_ms(x, fs_hz, prn, code_phase_chips + d, doppler_hz, if_hz) for d in (257.3, 511.7, 768.1)])
+    s_max, floor = float(np.mean(np.abs(peak) ** 2)), float(np.mean(np.abs(off) ** 2))
+    return float(np.sqrt(max(s_max - floor, 0.0)) / k)

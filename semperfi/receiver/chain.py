@@ -172,6 +172,16 @@ class Receiver:
                 return other_prn
         return None
 
+    def drop_channel(self, prn: int, reason: str) -> None:
+        """Stop tracking a PRN (and forget what its decoder read) and search for it again at once."""
+        if prn in self.channels:
+            t_s = (self._base + self._buf.size) / self.fs_hz
+            self._emit("channel_dropped", t_s, prn=prn, reason=reason)
+            del self.channels[prn]
+        self.decoders.pop(prn, None)
+        self.warm.pop(prn, None)
+        self._next_acq_sample = min(self._next_acq_sample, self._base + self._buf.size + self.acq_samples)
+
     def _decode(self, prn: int, ch: Channel) -> None:
         if ch.bits.edge_ms is not None and prn not in self.stats.confirmed:
             self.stats.confirmed.add(prn)

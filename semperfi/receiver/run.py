@@ -44,8 +44,11 @@ def _live_table(receiver: Receiver, t_s: float):
 
 
 def run_file(path: str | Path, fmt: str | None, fs_hz: float | None, if_hz: float | None, cfg: dict,
-             out_dir: str | Path, nav_path: str | None = None, live: bool = False, receiver_hook=None) -> RunSummary:
-    """Run the receiver chain over a file; ValueError (one line) for bad input, NoSignal when nothing acquires."""
+             out_dir: str | Path, nav_path: str | None = None, live: bool = False, receiver_hook=None,
+             receiver_factory=Receiver) -> RunSummary:
+    """Run a receiver over a file; ValueError (one line) for bad input, NoSignal when nothing acquires.
+
+    receiver_factory builds the receiver (the conventional chain by default; the defended one wraps it)."""
     reader = open_iq(path, fmt, fs_hz, if_hz)
     reader.chunk_samples = int(round(reader.fs_hz * CHUNK_S))   # the rate may come from the sidecar
     assisted = AssistedNav.from_rinex(nav_path) if nav_path else None
@@ -54,8 +57,8 @@ def run_file(path: str | Path, fmt: str | None, fs_hz: float | None, if_hz: floa
     write_config(out_dir, config.dumps_toml(cfg))
     t0 = time.perf_counter()
     with OutputWriter(out_dir, cfg["output"]["formats"]) as out:
-        receiver = Receiver(cfg, reader.fs_hz, reader.if_hz, assisted, on_fix=out.write, events=out,
-                            week_hint=_week_hint(reader, assisted))
+        receiver = receiver_factory(cfg, reader.fs_hz, reader.if_hz, assisted, on_fix=out.write, events=out,
+                                    week_hint=_week_hint(reader, assisted))
         if receiver_hook is not None:
             receiver_hook(receiver)
         if reader.truncated_bytes:
@@ -77,6 +80,8 @@ def run_file(path: str | Path, fmt: str | None, fs_hz: float | None, if_hz: floa
         except KeyboardInterrupt:
             out.emit("interrupted", receiver.stats.samples / reader.fs_hz)
         finally:
+            if hasattr(receiver, "finish"):
+                receiver.finish()
             if live_ctx is not None:
                 live_ctx.update(_live_table(receiver, receiver.stats.samples / reader.fs_hz))
                 live_ctx.stop()

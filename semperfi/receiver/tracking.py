@@ -280,7 +280,7 @@ class Channel:
     def ms_of_bit(self, bit_index: int) -> int:
         return self.bits.edge_ms + 20 * bit_index
 
-    def _epoch_around(self, sample: float) -> tuple[int, float] | None:
+    def epoch_around(self, sample: float) -> tuple[int, float] | None:
         """(ms index j, fraction) with code epoch j at or before the sample and epoch j + 1 after it."""
         lo = max(self.ms - self.HISTORY_MS + 1, 0)
         if self.ms - lo < 2:
@@ -297,7 +297,7 @@ class Channel:
 
         Interpolates between the code epochs around the sample; None when they are not in the history.
         """
-        around = self._epoch_around(sample)
+        around = self.epoch_around(sample)
         if around is None:
             return None
         j, frac = around
@@ -305,7 +305,7 @@ class Channel:
 
     def carrier_cycles_at(self, sample: float) -> float | None:
         """Accumulated carrier Doppler phase (cycles) at a sample: the integrated Doppler, for carrier smoothing."""
-        around = self._epoch_around(sample)
+        around = self.epoch_around(sample)
         if around is None:
             return None
         j, frac = around

@@ -1,0 +1,15 @@
+"""The defence's configuration keys with their defaults (section [defense] of the receiver's TOML)."""
+
+DEFAULTS: dict = {
+    "defense": {
+        "mode": "off",              # off | detect | full
+        "examine_every_s": 1.0,     # re-acquisition for auxiliary peaks while tracking, as the paper does
+        "full_search_every_s": 10.0,  # every PRN is searched this often; in between, only those seen
+        "separation_ns": 500.0,
+        "confirmations": 2,
+        "adversarial": "auto",      # auto | stronger | later | prn:LIST (the identifier will decide from a maneuver)
+        "max_iterations": 3,        # SIC stages per PRN
+        "max_tracks": 24,           # spoofed signals cancelled at once, all PRNs together
+        "verify_after_s": 1.0,      # re-acquisition on the cleaned signal this long after a cancellation starts
+    },
+}

@@ -1,0 +1,65 @@
+"""The receiver with SemperFi's defence in front of it: the spoof guard cleans the samples, the conventional chain
+receives them, and every fix says what it is built on (nominal, spoofing_detected, recovering, recovered).
+"""
+
+from dataclasses import replace
+
+import numpy as np
+
+from ..receiver.chain import Receiver
+from ..receiver.types import Fix
+from .detector import chips_apart
+from .guard import SpoofGuard
+
+
+class DefendedReceiver:
+    def __init__(self, cfg: dict, fs_hz: float, if_hz: float = 0.0, assisted=None, on_fix=None, events=None,
+                 week_hint: int | None = None):
+        self.on_fix, self.events = on_fix, events
+        self.guard = SpoofGuard(cfg, fs_hz, if_hz, events, on_cancel=self._drop_if_tracking)
+        self.inner = Receiver(cfg, fs_hz, if_hz, assisted, on_fix=self._label, events=events, week_hint=week_hint)
+        self.first_recovered_t_s: float | None = None
+
+    @property
+    def stats(self):
+        return self.inner.stats
+
+    @property
+    def last_fix(self):
+        return self.inner.last_fix
+
+    def channel_rows(self):
+        return self.inner.channel_rows()
+
+    def feed(self, chunk: np.ndarray) -> None:
+        self.guard.extra_prns = set(self.inner.channels)
+        self.inner.feed(self.guard.push(chunk))
+
+    def finish(self) -> None:
+        self.inner.feed(self.guard.flush())
+        self.guard.finish()
+
+    def _drop_if_tracking(self, prn: int, peak, peak_sample: int) -> None:
+        """If the conventional chain is locked on the attacker's peak, let it find the legitimate one."""
+        ch = self.inner.channels.get(prn)
+        around = ch.epoch_around(peak_sample) if ch is not None else None
+        if around is None or chips_apart(around[1] * 1023.0, peak.code_phase_chips) < 0.6:
+            self.inner.drop_channel(prn, "tracking the peak under cancellation")
+
+    def _label(self, fix: Fix) -> None:
+        """No fix built on a suspect peak is nominal: after an alarm it is spoofing_detected (detect only), then
+        recovering while any PRN it uses is not verified clean, then recovered."""
+        g = self.guard
+        state = "nominal"
+        if g.alarm_t_s is not None:
+            if g.d["mode"] != "full" or not g.cancel_started:
+                state = "spoofing_detected"
+            else:
+                suspect = [p for p in fix.prns if p in g.alarmed_prns and p not in g.verified]
+                state = "recovering" if suspect or g.gave_up else "recovered"
+        if state == "recovered" and self.first_recovered_t_s is None:
+            self.first_recovered_t_s = fix.t_rx_s
+            if self.events is not None:
+                self.events.emit("recovered", fix.t_rx_s, time_to_recover_s=round(fix.t_rx_s - g.alarm_t_s, 2))
+        if self.on_fix is not None:
+            self.on_fix(replace(fix, state=state))

@@ -1,0 +1,149 @@
+"""The spoof guard: a stream of samples in, the same stream with the attacker's signals cancelled out.
+
+    raw chunk --> [detector: periodic re-acquisition on raw samples] --alarm--> policy --> canceller
+              --> canceller (SIC stages, verified by re-acquisition on the cleaned samples) --> cleaned chunk
+
+Used in front of the receiver chain (DefendedReceiver) and on its own as the plug-in filter (semperfi clean).
+"""
+
+import numpy as np
+
+from ..receiver.acquisition import DopplerGrid, acquire
+from .canceller import Canceller, CancellerConfig, caf_amplitude, refine_peak
+from .detector import DetectorConfig, SpoofingDetector, chips_apart
+from .policy import choose, parse_policy
+
+WINDOW_MS = 20     # samples kept for examinations: 10 ms of acquisition + 20 ms for the two-path test
+
+
+class SpoofGuard:
+    def __init__(self, cfg: dict, fs_hz: float, if_hz: float = 0.0, events=None, on_cancel=None):
+        self.cfg, self.d = cfg, cfg["defense"]
+        if self.d["mode"] not in ("off", "detect", "full"):
+            raise ValueError(f"--defense wants off, detect or full; got '{self.d['mode']}'")
+        self.policy, self.policy_prns = parse_policy(self.d["adversarial"])
+        self.fs_hz, self.if_hz, self.events, self.on_cancel = float(fs_hz), float(if_hz), events, on_cancel
+        self.detector = SpoofingDetector(fs_hz, if_hz, DetectorConfig(separation_s=self.d["separation_ns"] * 1e-9,
+                                                                      confirmations=self.d["confirmations"]))
+        self.canceller = Canceller(fs_hz, if_hz, CancellerConfig(max_stages=self.d["max_iterations"]))
+        self.window = int(round(fs_hz * 1e-3)) * WINDOW_MS
+        self._raw = np.empty(0, dtype=np.complex64)      # the newest raw samples, for examinations
+        self._clean = np.empty(0, dtype=np.complex64)    # the newest cleaned samples, for verification
+        self._seen = 0                                   # raw samples received
+        self._cleaned = 0                                # cleaned samples produced
+        self._next_exam = 0
+        self._next_full = 0
+        self._present: set[int] = set()
+        self.alarm_t_s: float | None = None
+        self.alarmed_prns: set[int] = set()
+        self.cancel_started: dict[int, float] = {}       # PRN -> t_s of its first cancellation
+        self.verified: set[int] = set()                  # PRNs whose legitimate peak dominates after cancellation
+        self.pending_verify: dict[int, tuple[float, object, int]] = {}  # PRN -> (when, adversarial peak, stage)
+        self.gave_up: dict[int, str] = {}
+        self.extra_prns: set[int] = set()                # PRNs the user of the guard wants examined too
+
+    def _emit(self, kind: str, t_s: float, **fields) -> None:
+        if self.events is not None:
+            self.events.emit(kind, t_s, **fields)
+
+    # -- the stream -----------------------------------------------------------------------------------------
+    def push(self, chunk: np.ndarray) -> np.ndarray:
+        """Samples in; the cleaned samples out (in order, a little behind: cancellation holds back a code period)."""
+        chunk = np.asarray(chunk, dtype=np.complex64)
+        self._seen += chunk.size
+        self._raw = np.concatenate([self._raw, chunk])[-self.window:]
+        if self.d["mode"] != "off" and self._seen >= self._next_exam and self._raw.size >= self.window:
+            self._examine()
+            self._next_exam = self._seen + int(self.d["examine_every_s"] * self.fs_hz)
+        cleaned = self.canceller.push(chunk)
+        self._cleaned += cleaned.size
+        self._clean = np.concatenate([self._clean, cleaned])[-self.window:]
+        self._verify()
+        return cleaned
+
+    def flush(self) -> np.ndarray:
+        """The samples still held back, at the end of the stream."""
+        cleaned = self.canceller.flush()
+        self._cleaned += cleaned.size
+        return cleaned
+
+    def _examine(self) -> None:
+        t_s = (self._seen - self.window) / self.fs_hz
+        full = self._seen >= self._next_full or not self._present
+        prns = list(range(1, 33)) if full else sorted(self._present | self.extra_prns)
+        if full:
+            self._next_full = self._seen + int(self.d["full_search_every_s"] * self.fs_hz)
+        a = self.cfg["acquisition"]
+        cafs = acquire(self._raw[:self.window // 2], self.fs_hz, prns, DopplerGrid(0.0, a["doppler_max_hz"], 333.0),
+                       self.if_hz, 2, 5, a["pfa"], a["max_peaks"])
+        self._present |= {p for p, c in cafs.items() if c.best is not None}
+        for alarm in self.detector.examine(cafs, t_s, self._raw):
+            self.alarmed_prns.add(alarm.prn)
+            if self.alarm_t_s is None:
+                self.alarm_t_s = t_s
+            self._emit("spoofing_alarm", t_s, **alarm.pair.as_event())
+            if self.d["mode"] == "full":
+                self._start_cancelling(alarm, t_s)
+
+    def _start_cancelling(self, alarm, t_s: float) -> None:
+        choice = choose(alarm, self.policy, self.policy_prns)
+        if choice is None:
+            return
+        if sum(len(s.tracks) for s in self.canceller.stages) >= self.d["max_tracks"]:
+            self.gave_up[alarm.prn] = "too many spoofed signals at once"
+            self._emit("cancellation_refused", t_s, prn=alarm.prn, reason=self.gave_up[alarm.prn])
+            return
+        peak_sample = self._seen - self.window
+        peak = refine_peak(self._raw[:self.window // 2], self.fs_hz, self.if_hz, choice.adversarial)
+        amplitude = caf_amplitude(self._raw, self.fs_hz, self.if_hz, peak.prn, peak.code_phase_chips, peak.doppler_hz)
+        stage = sum(1 for s in self.canceller.stages if alarm.prn in s.tracks)
+        if self.canceller.cancel(peak, peak_sample, stage) is None:
+            self.gave_up[alarm.prn] = f"still spoofed after {stage} SIC iterations"
+            self._emit("cancellation_refused", t_s, prn=alarm.prn, reason=self.gave_up[alarm.prn])
+            return
+        self.cancel_started.setdefault(alarm.prn, t_s)
+        self.pending_verify[alarm.prn] = (t_s + self.d["verify_after_s"], peak, stage)
+        self._emit("cancellation_start", t_s, prn=alarm.prn, stage=stage, guessed=choice.guessed, reason=choice.reason,
+                   adversarial_code_phase_chips=round(peak.code_phase_chips, 4),
+                   adversarial_doppler_hz=round(peak.doppler_hz, 1), amplitude_estimate=amplitude,
+                   legitimate_code_phase_chips=round(choice.legitimate.code_phase_chips, 4))
+        if self.on_cancel is not None:
+            self.on_cancel(alarm.prn, peak, peak_sample)
+
+    def _verify(self) -> None:
+        """SIC: once a stage has settled, re-acquire its PRN on the cleaned signal; iterate while the attacker's
+        peak still dominates, up to the bound."""
+        t_s = self._cleaned / self.fs_hz
+        first = self._cleaned - self._clean.size          # absolute index of the cleaned window's first sample
+        for prn, (when, peak, stage) in list(self.pending_verify.items()):
+            if t_s < when or self._clean.size < self.window:
+                continue
+            del self.pending_verify[prn]
+            track = self.canceller.stages[stage].tracks.get(prn)
+            around = track.channel.epoch_around(first) if track is not None else None
+            if around is None:   # the canceller lost the spoofer: nothing left to verify against
+                continue
+            adversary_code = around[1] * 1023.0                # chips since its last code epoch, at `first`
+            a = self.cfg["acquisition"]
+            caf = acquire(self._clean[:self.window // 2], self.fs_hz, [prn],
+                          DopplerGrid(peak.doppler_hz, 1500.0, 333.0), self.if_hz, 2, 5, a["pfa"], a["max_peaks"])[prn]
+            best = caf.best
+            still = best is not None and chips_apart(best.code_phase_chips, adversary_code) < 0.6
+            self._emit("sic_iteration", t_s, prn=prn, stage=stage, legitimate_dominates=not still,
+                       strongest_code_phase_chips=None if best is None else round(best.code_phase_chips, 4),
+                       adversary_code_phase_chips=round(adversary_code, 4),
+                       attenuation_db=self.canceller.report().get(prn))
+            if not still:
+                self.verified.add(prn)
+                continue
+            if self.canceller.cancel(best, first, stage + 1) is None:
+                self.gave_up[prn] = f"attacker's peak still dominates after {stage + 1} SIC iterations"
+                self._emit("cancellation_refused", t_s, prn=prn, reason=self.gave_up[prn])
+            else:
+                self.pending_verify[prn] = (t_s + self.d["verify_after_s"], best, stage + 1)
+
+    def finish(self) -> None:
+        """At the end of the stream: what the canceller achieved, and what was given up."""
+        t_s = self._seen / self.fs_hz
+        self._emit("defense_summary", t_s, alarms=sorted(self.alarmed_prns), cancelled=sorted(self.cancel_started),
+                   verified=sorted(self.verified), gave_up=self.gave_up, attenuation_db=self.canceller.report())

@@ -1,0 +1,52 @@
+"""Which of a PRN's two peaks is the attacker's, until the Adversarial Peak Identifier decides from a maneuver."""
+
+from dataclasses import dataclass
+
+from ..receiver.acquisition import Peak
+from .detector import Alarm
+
+
+@dataclass(frozen=True)
+class Choice:
+    adversarial: Peak
+    legitimate: Peak
+    guessed: bool          # True when nothing but the policy's assumption says so
+    reason: str
+
+
+def _later(a: Peak, b: Peak) -> bool:
+    """Whether a arrives later than b: a larger delay is a smaller code phase at the same instant."""
+    return (a.code_phase_chips - b.code_phase_chips + 511.5) % 1023 - 511.5 < 0
+
+
+def parse_policy(text: str) -> tuple[str, frozenset[int]]:
+    """'auto' | 'stronger' | 'later' | 'prn:3,7,19'; ValueError (one line) otherwise."""
+    if text in ("auto", "stronger", "later"):
+        return text, frozenset()
+    if text.startswith("prn:"):
+        try:
+            prns = frozenset(int(p) for p in text[4:].split(",") if p.strip())
+        except ValueError:
+            prns = frozenset()
+        if prns and all(1 <= p <= 32 for p in prns):
+            return "prn", prns
+    raise ValueError(f"--adversarial wants auto, stronger, later or prn:LIST (e.g. prn:3,7); got '{text}'")
+
+
+def choose(alarm: Alarm, policy: str, prns: frozenset[int] = frozenset()) -> Choice | None:
+    """The adversarial peak of an alarm's pair under a policy; None when the policy leaves this PRN alone."""
+    main, aux = alarm.pair.main, alarm.pair.auxiliary
+    stronger, weaker = (main, aux) if main.metric >= aux.metric else (aux, main)
+    if policy == "prn" and alarm.prn not in prns:
+        return None
+    if policy == "auto" and alarm.newcomer_code_phase_chips is not None:
+        newcomer = min((main, aux), key=lambda p: abs((p.code_phase_chips - alarm.newcomer_code_phase_chips + 511.5)
+                                                       % 1023 - 511.5))
+        other = aux if newcomer is main else main
+        return Choice(newcomer, other, False, "appeared after the receiver had the other peak")
+    if policy == "later":
+        late, early = (main, aux) if _later(main, aux) else (aux, main)
+        return Choice(late, early, True, "assumed: the later-arriving peak is the attacker's")
+    reason = {"prn": "listed PRN; assumed: the stronger peak is the attacker's"}.get(
+        policy, "assumed: the stronger peak is the attacker's (no earlier lock to tell them apart)")
+    return Choice(stronger, weaker, True, reason)
