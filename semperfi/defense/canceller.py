@@ -12,6 +12,7 @@ import numpy as np
 from numba import njit
 
 from ..gps.codes import ca_code
+from ..gps.constants import CA_CODE_LENGTH_CHIPS
 from ..receiver.acquisition import DopplerGrid, Peak, acquire
 from ..receiver.correlator import WIPE_TABLE, extended_code
 from ..receiver.tracking import NEXT_SAMPLE, Channel, LoopConfig, initial_state
@@ -120,31 +121,79 @@ class AdversaryTrack:
         self._acc_signal = self._acc_residual = self._acc_noise = 0.0
         self._acc_n = 0
         self.attenuation_db: list[tuple[float, bool]] = []   # per ~1 s window: (dB, only a lower bound)
+        self.settled = False
+        self.hold_from: float | None = None   # while the loops settle, samples from here on are held back
 
     @property
     def next_sample(self) -> float:
         return float(self.channel.st[NEXT_SAMPLE])
 
     def process(self, tracked: np.ndarray, work: np.ndarray, base_sample: int) -> None:
-        """Track the spoofer through `tracked` and subtract its replica from `work` (same samples, cleaned so far)."""
+        """Track the spoofer through `tracked` and subtract its replica from `work` (same samples, cleaned so far).
+
+        Nothing is subtracted while the loops settle; those samples are held back (hold_from) and, once the
+        loops have settled, cancelled with the settled replica extended backwards in time.
+        """
         ch = self.channel
-        settled_before = not ch.pull_in
+        first_ms = ch.ms
         prompts, _ = ch.process(tracked, base_sample)
         blocks = ch.last_blocks
         if prompts.size == 0:
             return
-        alphas = prompts / blocks[:, 1]                       # least squares: the replica has unit modulus
+        if self.hold_from is None and not self.settled:
+            self.hold_from = float(blocks[0, 0])
+        settled = first_ms + np.arange(prompts.size) >= self.cfg.pull_in_ms
+        if not settled.any():
+            return
+        i0 = int(np.argmax(settled))
+        blocks, alphas = blocks[i0:], prompts[i0:] / blocks[i0:, 1]   # least squares: unit-modulus replica
+        if not self.settled:
+            self._ref = alphas[0]
+        est = self._smooth(alphas)
+        if not self.settled:
+            self.settled = True
+            self._backfill(work, base_sample, blocks[0], est[0])
+            self.hold_from = None
+        subtract_replicas(work, base_sample, blocks, est, self.prn)
+        self._measure(work, base_sample, blocks, est)
+
+    def _smooth(self, alphas: np.ndarray, ref: complex | None = None) -> np.ndarray:
+        """Decision-directed smoothing: each period's bit is its sign against the running reference."""
         est = np.empty_like(alphas)
-        ref = self._ref if self._ref != 0 else alphas[0]
-        for i, a in enumerate(alphas):                       # decision-directed: the bit is a's sign against ref
+        ref = self._ref if ref is None else ref
+        for i, a in enumerate(alphas):
             bit = 1.0 if (a * np.conj(ref)).real >= 0 else -1.0
             ref = ref + self._lam * (a * bit - ref)
             est[i] = ref * bit
         self._ref = ref
-        if not settled_before:
+        return est
+
+    def _backfill(self, work: np.ndarray, base_sample: int, settled_block: np.ndarray, settled_est: complex) -> None:
+        """Cancel the held samples [hold_from, first settled block) with the settled replica run backwards."""
+        first, _, cp, step, ph, pstep = settled_block
+        period = CA_CODE_LENGTH_CHIPS / step                 # samples per code period
+        epoch0 = first - cp / step                           # fractional sample of the settled block's epoch
+        starts = []
+        k = 1
+        while epoch0 - k * period >= max(self.hold_from, base_sample):
+            starts.append(epoch0 - k * period)
+            k += 1
+        if not starts:
             return
-        subtract_replicas(work, base_sample, blocks, est, self.prn)
-        self._measure(work, base_sample, blocks, est)
+        blocks = []
+        for e in starts:                                     # newest first: the smoothing walks back in time
+            s0 = np.ceil(e)
+            n = np.ceil(e + period) - s0
+            blocks.append((s0, n, (s0 - e) * step, step, ph + (s0 - first) * pstep, pstep))
+        blocks = np.array(blocks)
+        beta, power = np.empty(len(blocks), dtype=np.complex128), np.empty(len(blocks))
+        _residual_kernel(work, base_sample, blocks, self.channel.code_ext, MOD_TABLE, beta, power)
+        ok = np.isfinite(power)
+        saved = self._ref
+        bit = 1.0 if (settled_est * np.conj(saved)).real >= 0 else -1.0
+        est = self._smooth(beta[ok], ref=settled_est * bit)
+        self._ref = saved
+        subtract_replicas(work, base_sample, blocks[ok], est, self.prn)
 
     def _measure(self, work, base_sample, blocks, est) -> None:
         """What is left at the replica: the attenuation this track achieves (noise-corrected powers).
@@ -201,7 +250,8 @@ class CancellerStage:
             tr.process(self._raw, self._work, self.base)
             if not tr.channel.locked:   # the spoofer went away (or was never there)
                 del self.tracks[prn]
-        done = min([int(tr.next_sample) for tr in self.tracks.values()] + [self.end_sample])
+        done = min([int(tr.next_sample if tr.hold_from is None else tr.hold_from) for tr in self.tracks.values()]
+                   + [self.end_sample])
         n = max(0, done - self.base)
         out = self._work[:n]
         self._raw, self._work = self._raw[n:], self._work[n:].copy()

@@ -4,6 +4,8 @@ DEFAULTS: dict = {
     "defense": {
         "mode": "off",              # off | detect | full
         "examine_every_s": 1.0,     # re-acquisition for auxiliary peaks while tracking, as the paper does
+        "startup_s": 0.3,           # output held back at the start while the first looks (every 0.1 s) decide, so an
+                                    # attack present from the first sample is cancelled from the first sample
         "full_search_every_s": 10.0,  # every PRN is searched this often; in between, only those seen
         "separation_ns": 500.0,
         "confirmations": 2,

@@ -12,6 +12,9 @@ from .detector import chips_apart
 from .guard import SpoofGuard
 
 
+MAX_RECOVERED_RESIDUAL_M = 30.0
+
+
 class DefendedReceiver:
     def __init__(self, cfg: dict, fs_hz: float, if_hz: float = 0.0, assisted=None, on_fix=None, events=None,
                  week_hint: int | None = None):
@@ -55,8 +58,11 @@ class DefendedReceiver:
             if g.d["mode"] != "full" or not g.cancel_started:
                 state = "spoofing_detected"
             else:
+                # recovered only from verified PRNs, and only when the pseudoranges agree with each other: a fix
+                # mixing legitimate and spoofed ranges shows it in its residuals
                 suspect = [p for p in fix.prns if p in g.alarmed_prns and p not in g.verified]
-                state = "recovering" if suspect or g.gave_up else "recovered"
+                consistent = fix.residual_rms_m < MAX_RECOVERED_RESIDUAL_M
+                state = "recovering" if suspect or g.gave_up or not consistent else "recovered"
         if state == "recovered" and self.first_recovered_t_s is None:
             self.first_recovered_t_s = fix.t_rx_s
             if self.events is not None:

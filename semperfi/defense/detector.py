@@ -12,7 +12,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..gps.constants import CA_CHIP_RATE_HZ, L1_HZ
-from ..receiver.acquisition import Caf, Peak, is_cross_correlation
+from ..gps.codes import ca_code
+from ..receiver.acquisition import Caf, Peak
 from .twopath import two_path_test
 
 
@@ -20,7 +21,11 @@ from .twopath import two_path_test
 class DetectorConfig:
     separation_s: float = 500e-9
     sidelobe_margin_db: float = 20.0      # C/A autocorrelation sidelobes lie 24 dB below the main peak
-    cross_correlation_db: float = 10.0     # a peak this much weaker than another PRN at its Doppler (mod 1 kHz)
+    cross_correlation_metric: float = 16.0  # peaks stronger than this many detection thresholds are never cross-talk
+    # Peaks weaker than this many detection thresholds are not examined: with many strong signals present, their
+    # summed cross-correlations make a field of structured interference whose maxima sit just above a threshold
+    # set for white noise. A legitimate signal at 40 dB-Hz or more, and any spoofer that matters, is stronger.
+    min_peak_thresholds: float = 3.0
     confirmations: int = 2                # consecutive examinations that must see the pair
     two_path: bool = True
     two_path_pfa: float = 1e-4
@@ -52,22 +57,50 @@ def chips_apart(a: float, b: float) -> float:
     return abs((a - b + 511.5) % 1023 - 511.5)
 
 
-def auxiliary_peaks(caf: Caf, cafs: dict[int, Caf], cfg: DetectorConfig) -> list[PeakPair]:
+def auxiliary_peaks(caf: Caf, cafs: dict[int, Caf], cfg: DetectorConfig, fs_hz: float) -> list[PeakPair]:
     """Auxiliary peaks in one PRN's CAF, judged against its main peak and the other PRNs' signals."""
-    if caf.best is None:
+    if not _examinable(caf.best, caf, cafs, cfg, fs_hz):
         return []
     main = caf.best
-    others = [(c.best.doppler_hz, c.best.cn0_dbhz) for p, c in cafs.items() if p != caf.prn and c.best is not None]
     floor_metric = main.metric * 10 ** (-cfg.sidelobe_margin_db / 10)
     pairs = []
     for p in caf.peaks[1:]:
         sep = chips_apart(p.code_phase_chips, main.code_phase_chips)
-        if sep <= cfg.separation_chips or p.metric < floor_metric:
-            continue
-        if is_cross_correlation(p.doppler_hz, p.cn0_dbhz, others, cfg.cross_correlation_db):
-            continue
-        pairs.append(PeakPair(caf.prn, main, p, sep, "caf"))
+        if sep > cfg.separation_chips and p.metric >= floor_metric and _examinable(p, caf, cafs, cfg, fs_hz):
+            pairs.append(PeakPair(caf.prn, main, p, sep, "caf"))
     return pairs
+
+
+def _examinable(peak: Peak | None, caf: Caf, cafs: dict[int, Caf], cfg: DetectorConfig, fs_hz: float) -> bool:
+    return (peak is not None and peak.metric >= cfg.min_peak_thresholds * caf.threshold
+            and not is_cross_talk(peak, caf, cafs, cfg, fs_hz))
+
+
+def is_cross_talk(peak: Peak, caf: Caf, cafs: dict[int, Caf], cfg: DetectorConfig, fs_hz: float) -> bool:
+    """Whether a peak is explained by another PRN's signal seen through the two codes' cross-correlation.
+
+    The cross-correlation of two C/A codes at given code phases and Dopplers is deterministic: it is computed for
+    each stronger signal present and compared with the peak (a peak that it explains for a third or more is
+    cross-talk). Strong peaks are never cross-talk: cross-correlation lies 21 dB down or more.
+    """
+    if peak.metric >= cfg.cross_correlation_metric * caf.threshold:
+        return False
+    n = int(round(fs_hz * caf.coherent_s))
+    t = np.arange(n) / fs_hz
+    mine = np.conj(_signal(peak.prn, peak.code_phase_chips, peak.doppler_hz, t))
+    for prn, other in cafs.items():
+        b = other.best
+        if prn == caf.prn or b is None or b.metric <= peak.metric:
+            continue
+        rho = abs(np.vdot(mine.conj(), _signal(prn, b.code_phase_chips, b.doppler_hz, t))) / n
+        if b.metric * rho ** 2 >= peak.metric / 3.0:
+            return True
+    return False
+
+
+def _signal(prn: int, code_phase_chips: float, doppler_hz: float, t_s: np.ndarray) -> np.ndarray:
+    chips = np.floor(code_phase_chips + t_s * CA_CHIP_RATE_HZ * (1 + doppler_hz / L1_HZ)).astype(np.int64) % 1023
+    return ca_code(prn)[chips] * np.exp(2j * np.pi * doppler_hz * t_s)
 
 
 def hidden_pair(samples: np.ndarray, fs_hz: float, if_hz: float, main: Peak, cfg: DetectorConfig) -> PeakPair | None:
@@ -84,12 +117,16 @@ def hidden_pair(samples: np.ndarray, fs_hz: float, if_hz: float, main: Peak, cfg
     return PeakPair(main.prn, strong, weak, fit.separation_chips, "two_path")
 
 
+NEWCOMER_AFTER_S = 5.0
+
+
 @dataclass
 class _Track:
     code_phase_chips: float   # at t_s
     doppler_hz: float
     t_s: float
     first_seen_s: float
+    looks: int = 0
 
 
 @dataclass
@@ -128,6 +165,7 @@ class SpoofingDetector:
                 best = _Track(p.code_phase_chips, p.doppler_hz, t_s, t_s)
                 known.append(best)
             best.code_phase_chips, best.doppler_hz, best.t_s = p.code_phase_chips, p.doppler_hz, t_s
+            best.looks += 1
             matched.append(best)
         self.tracks[prn] = [tr for tr in known if tr in matched or t_s - tr.t_s < 10.0]
         return matched
@@ -136,9 +174,9 @@ class SpoofingDetector:
         """One acquisition's verdict: alarms for PRNs whose pair has now been seen cfg.confirmations times."""
         alarms = []
         for prn, caf in cafs.items():
-            if caf.best is None:
+            if not _examinable(caf.best, caf, cafs, self.cfg, self.fs_hz):
                 continue
-            pairs = auxiliary_peaks(caf, cafs, self.cfg)
+            pairs = auxiliary_peaks(caf, cafs, self.cfg, self.fs_hz)
             if not pairs and self.cfg.two_path and samples is not None:
                 hidden = hidden_pair(samples, self.fs_hz, self.if_hz, caf.best, self.cfg)
                 pairs = [hidden] if hidden else []
@@ -152,6 +190,10 @@ class SpoofingDetector:
                 self.alarmed.add(prn)
                 older = min(tracks, key=lambda tr: tr.first_seen_s)
                 newer = max(tracks, key=lambda tr: tr.first_seen_s)
-                newcomer = newer.code_phase_chips if newer.first_seen_s > older.first_seen_s else None
+                # A newcomer only when the other peak had been there alone for a while (NEWCOMER_AFTER_S, three
+                # looks or more) and this one is new: a weak legitimate peak that comes and goes under a strong
+                # spoofer must not pass for one.
+                settled = t_s - older.first_seen_s >= NEWCOMER_AFTER_S and older.looks - newer.looks >= 3
+                newcomer = newer.code_phase_chips if settled else None
                 alarms.append(Alarm(t_s, prn, pairs[0], newcomer))
         return alarms

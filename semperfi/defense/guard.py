@@ -10,7 +10,7 @@ import numpy as np
 
 from ..receiver.acquisition import DopplerGrid, acquire
 from .canceller import Canceller, CancellerConfig, caf_amplitude, refine_peak
-from .detector import DetectorConfig, SpoofingDetector, chips_apart
+from .detector import Alarm, DetectorConfig, SpoofingDetector, auxiliary_peaks, chips_apart
 from .policy import choose, parse_policy
 
 WINDOW_MS = 20     # samples kept for examinations: 10 ms of acquisition + 20 ms for the two-path test
@@ -41,6 +41,8 @@ class SpoofGuard:
         self.pending_verify: dict[int, tuple[float, object, int]] = {}  # PRN -> (when, adversarial peak, stage)
         self.gave_up: dict[int, str] = {}
         self.extra_prns: set[int] = set()                # PRNs the user of the guard wants examined too
+        self._startup_samples = int(self.d["startup_s"] * fs_hz)
+        self._held: list[np.ndarray] = []
 
     def _emit(self, kind: str, t_s: float, **fields) -> None:
         if self.events is not None:
@@ -52,9 +54,17 @@ class SpoofGuard:
         chunk = np.asarray(chunk, dtype=np.complex64)
         self._seen += chunk.size
         self._raw = np.concatenate([self._raw, chunk])[-self.window:]
+        starting = self.d["mode"] != "off" and self._seen < self._startup_samples
         if self.d["mode"] != "off" and self._seen >= self._next_exam and self._raw.size >= self.window:
             self._examine()
-            self._next_exam = self._seen + int(self.d["examine_every_s"] * self.fs_hz)
+            every = 0.1 if starting else self.d["examine_every_s"]
+            self._next_exam = self._seen + int(every * self.fs_hz)
+        if starting:                      # hold the first samples until the first looks have decided
+            self._held.append(chunk)
+            return np.empty(0, dtype=np.complex64)
+        if self._held:
+            chunk = np.concatenate(self._held + [chunk])
+            self._held = []
         cleaned = self.canceller.push(chunk)
         self._cleaned += cleaned.size
         self._clean = np.concatenate([self._clean, cleaned])[-self.window:]
@@ -63,7 +73,9 @@ class SpoofGuard:
 
     def flush(self) -> np.ndarray:
         """The samples still held back, at the end of the stream."""
-        cleaned = self.canceller.flush()
+        held = np.concatenate(self._held) if self._held else np.empty(0, dtype=np.complex64)
+        self._held = []
+        cleaned = np.concatenate([self.canceller.push(held), self.canceller.flush()])
         self._cleaned += cleaned.size
         return cleaned
 
@@ -111,36 +123,49 @@ class SpoofGuard:
             self.on_cancel(alarm.prn, peak, peak_sample)
 
     def _verify(self) -> None:
-        """SIC: once a stage has settled, re-acquire its PRN on the cleaned signal; iterate while the attacker's
-        peak still dominates, up to the bound."""
+        """SIC: once a stage has settled, re-acquire its PRN on the cleaned signal. If the cancelled peak still
+        dominates, cancel what is left of it in another stage; if another auxiliary peak remains (an attacker with
+        several copies), cancel the one the policy names; else the PRN is clean. Bounded by max_iterations."""
         t_s = self._cleaned / self.fs_hz
         first = self._cleaned - self._clean.size          # absolute index of the cleaned window's first sample
         for prn, (when, peak, stage) in list(self.pending_verify.items()):
             if t_s < when or self._clean.size < self.window:
                 continue
             del self.pending_verify[prn]
-            track = self.canceller.stages[stage].tracks.get(prn)
-            around = track.channel.epoch_around(first) if track is not None else None
-            if around is None:   # the canceller lost the spoofer: nothing left to verify against
-                continue
-            adversary_code = around[1] * 1023.0                # chips since its last code epoch, at `first`
             a = self.cfg["acquisition"]
-            caf = acquire(self._clean[:self.window // 2], self.fs_hz, [prn],
-                          DopplerGrid(peak.doppler_hz, 1500.0, 333.0), self.if_hz, 2, 5, a["pfa"], a["max_peaks"])[prn]
-            best = caf.best
-            still = best is not None and chips_apart(best.code_phase_chips, adversary_code) < 0.6
-            self._emit("sic_iteration", t_s, prn=prn, stage=stage, legitimate_dominates=not still,
-                       strongest_code_phase_chips=None if best is None else round(best.code_phase_chips, 4),
-                       adversary_code_phase_chips=round(adversary_code, 4),
-                       attenuation_db=self.canceller.report().get(prn))
-            if not still:
+            # every PRN present, so that what is left can be told from other PRNs' cross-correlation
+            cafs = acquire(self._clean[:self.window // 2], self.fs_hz, sorted(self._present | {prn}),
+                           DopplerGrid(0.0, a["doppler_max_hz"], 333.0), self.if_hz, 2, 5, a["pfa"], a["max_peaks"])
+            caf, target, reason = cafs[prn], None, ""
+            cancelled = self._cancelled_code_phases(prn, first)
+            if caf.best is not None and any(chips_apart(caf.best.code_phase_chips, c) < 0.6 for c in cancelled):
+                target, reason = caf.best, "the cancelled peak still dominates"
+            else:
+                pairs = auxiliary_peaks(caf, cafs, self.detector.cfg, self.fs_hz)
+                if pairs:
+                    choice = choose(Alarm(t_s, prn, pairs[0], None), self.policy, self.policy_prns)
+                    if choice is not None:
+                        target, reason = choice.adversarial, "another auxiliary peak remains: " + choice.reason
+            self._emit("sic_iteration", t_s, prn=prn, stage=stage, legitimate_dominates=target is None,
+                       strongest_code_phase_chips=None if caf.best is None else round(caf.best.code_phase_chips, 4),
+                       attenuation_db=self.canceller.report().get(prn), next=reason or None)
+            if target is None:
                 self.verified.add(prn)
-                continue
-            if self.canceller.cancel(best, first, stage + 1) is None:
-                self.gave_up[prn] = f"attacker's peak still dominates after {stage + 1} SIC iterations"
+            elif self.canceller.cancel(target, first, stage + 1) is None:
+                self.gave_up[prn] = f"{reason} after {stage + 1} SIC iterations (the bound)"
                 self._emit("cancellation_refused", t_s, prn=prn, reason=self.gave_up[prn])
             else:
-                self.pending_verify[prn] = (t_s + self.d["verify_after_s"], best, stage + 1)
+                self.pending_verify[prn] = (t_s + self.d["verify_after_s"], target, stage + 1)
+
+    def _cancelled_code_phases(self, prn: int, sample: int) -> list[float]:
+        """Where the attacker's peaks under cancellation are, in chips, at an absolute sample."""
+        out = []
+        for st in self.canceller.stages:
+            tr = st.tracks.get(prn)
+            around = tr.channel.epoch_around(sample) if tr is not None else None
+            if around is not None:
+                out.append(around[1] * 1023.0)
+        return out
 
     def finish(self) -> None:
         """At the end of the stream: what the canceller achieved, and what was given up."""

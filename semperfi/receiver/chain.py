@@ -90,6 +90,8 @@ class Receiver:
 
     def _is_cross_talk(self, caf: Caf, cafs: dict[int, Caf]) -> bool:
         """A weak peak at the Doppler (mod 1 kHz) of a much stronger PRN is that PRN's cross-correlation."""
+        if caf.best.metric >= 4.0 * caf.threshold:   # cross-correlation lies 21 dB down: never a strong peak
+            return False
         stronger = [(o.best.doppler_hz, o.best.cn0_dbhz) for o in cafs.values() if o.best and o.prn != caf.prn]
         stronger += [(ch.doppler_at(0), ch.cn0_dbhz) for ch in self.channels.values()]   # signals in track too
         return is_cross_correlation(caf.best.doppler_hz, caf.best.cn0_dbhz, stronger,

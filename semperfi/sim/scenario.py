@@ -53,6 +53,8 @@ DEFAULTS: dict = {
         "nav_data": "same",       # same | altered (spoofed PRNs broadcast a shifted satellite clock)
         "altered_clock_s": 1e-6,
         "carrier_offset_hz": 0.0, # spoofer oscillator frequency error
+        "copies": 1,              # spoofed copies of each PRN (a hostile many-peak attacker)
+        "copy_spacing_s": 3e-6,   # extra delay between successive copies
     },
     "multipath": {
         "enabled": False,
@@ -103,6 +105,7 @@ def check(cfg: dict) -> None:
     need(0 <= a["delay_s"] < 1e-3, "attacker.delay_s must lie in [0, 1 ms)")
     need(a["power_ramp_s"] >= 0, "attacker.power_ramp_s must not be negative")
     need(a["nav_data"] in ("same", "altered"), "attacker.nav_data is same or altered")
+    need(1 <= a["copies"] <= 10 and a["copy_spacing_s"] >= 0, "attacker.copies must lie in 1..10")
     m = cfg["multipath"]
     need(0 < m["delay_chips"] < 1023 and m["relative_power_db"] <= 0, "multipath: delay in (0, 1023) chips, power <= 0 dB")
     need(cfg["output"]["truth_rate_hz"] > 0, "output.truth_rate_hz must be positive")

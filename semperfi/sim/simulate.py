@@ -128,7 +128,12 @@ class Simulator:
                     eph = quantize_ephemeris(replace(eph, af0_s=eph.af0_s + self.attack.altered_clock_s))
                 twin = next((s for s in signals if s.prn == p and s.source == "legit"), None)
                 phase = twin.phase_offset_cycles if (self.attack.aligned and twin) else rng.uniform()
-                signals.append(_Signal("spoof", p, NavStream(eph, c.iono, c.utc, almanac), phase))
+                nav = NavStream(eph, c.iono, c.utc, almanac)
+                signals.append(_Signal("spoof", p, nav, phase))
+                a = self.cfg["attacker"]
+                for i in range(1, a["copies"]):
+                    signals.append(_Signal("spoof", p, nav, rng.uniform(),
+                                           extra_delay_m=i * a["copy_spacing_s"] * SPEED_OF_LIGHT_M_S))
         return signals
 
     # -- one instant ----------------------------------------------------------------------------------------

@@ -1,0 +1,168 @@
+"""SemperFi's defence on simulated attacks: detection, amplitude, cancellation, recovered fixes, hostile input."""
+
+import csv
+import json
+import time
+
+import numpy as np
+import pytest
+
+from semperfi.cli import _receiver_config
+from semperfi.defense.canceller import (Canceller, caf_amplitude, refine_peak, replicas_reference,
+                                        subtract_replicas)
+from semperfi.defense.defended import DefendedReceiver
+from semperfi.defense.detector import SpoofingDetector
+from semperfi.defense.twopath import delay_profile, delay_profile_reference
+from semperfi.gps.geometry import enu_rotation, geodetic_to_ecef
+from semperfi.iq import open_iq
+from semperfi.receiver.acquisition import DopplerGrid, acquire
+from semperfi.receiver.run import run_file
+from semperfi.sim.run import simulate_to_file
+from semperfi.sim.scenario import load_scenario
+from semperfi.sim.simulate import Simulator
+from semperfi.sim.truth import read_signal_truth, truth_paths
+
+FS = 2e6
+LAT, LON, H = 42.3398, -71.0892, 10.0
+
+
+def simulate(path, *sets, duration, fmt="ishort"):
+    cfg = load_scenario(None, [f"signal.fs_hz={FS}", f"time.duration_s={duration}", f'signal.format="{fmt}"', *sets])
+    simulate_to_file(cfg, path)
+    return read_signal_truth(truth_paths(path)["signals.csv"])
+
+
+def examine_stream(path, prns, duration, every_s=0.5):
+    """Run the detector the way the receiver does, every every_s; returns [(t_s, alarm)]."""
+    reader, det, out = open_iq(path), SpoofingDetector(FS), []
+    for t in np.arange(0.0, duration - 0.03, every_s):
+        x = reader.read(int(t * FS), int(0.02 * FS))
+        cafs = acquire(x[: int(0.01 * FS)], FS, prns, DopplerGrid(max_hz=6000, step_hz=333), coherent_ms=2, noncoherent=5)
+        out += [(t, a) for a in det.examine(cafs, t, x)]
+    return out
+
+
+def test_fast_kernels_equal_their_references():
+    rng = np.random.default_rng(2)
+    x = (rng.standard_normal(60000) + 1j * rng.standard_normal(60000)).astype(np.complex64)
+    offsets = np.arange(-2.0, 2.0001, 0.05)
+    fast = delay_profile(x, FS, 9, 300.37, 1234.0, 0.0, offsets, 20)
+    slow = delay_profile_reference(x, FS, 9, 300.37, 1234.0, 0.0, offsets, 20)
+    assert np.allclose(fast[0], slow[0], atol=1e-6) and np.allclose(fast[1], slow[1])
+    blocks = np.array([[100.0, 2000.0, 0.3, 0.5115, 0.25, 0.0007], [2100.0, 2000.0, 0.1, 0.5115, 0.68, 0.0007]])
+    amps = np.array([0.5 + 0.2j, -0.4 + 0.1j])
+    y = np.zeros(5000, dtype=np.complex64)
+    subtract_replicas(y, 0, blocks, amps, 5)
+    ref = replicas_reference(5000, 0, blocks, amps, 5)
+    assert np.max(np.abs(-y - ref)) < np.pi / 4096 * 0.6   # the carrier table's half-cell
+
+
+@pytest.mark.parametrize("sets", [[], ["multipath.enabled=true", "multipath.delay_chips=0.2"],
+                                  ["multipath.enabled=true", "multipath.delay_chips=0.3"]],
+                         ids=["clean", "echo-0.2chip", "echo-0.3chip"])
+def test_no_alarm_on_clean_signals_or_a_short_echo(tmp_path, sets):
+    rows = simulate(tmp_path / "c.bin", "constellation.max_satellites=8", "multipath.relative_power_db=-6.0", *sets,
+                    duration=4.0)
+    alarms = examine_stream(tmp_path / "c.bin", sorted({int(r["prn"]) for r in rows}), 4.0)
+    assert not alarms, [(t, a.pair.as_event()) for t, a in alarms]
+
+
+def test_seamless_takeover_alarms_when_the_peaks_part_by_500_ns(tmp_path):
+    rows = simulate(tmp_path / "t.bin", "constellation.max_satellites=6", "attacker.enabled=true",
+                    'attacker.mode="takeover"', "attacker.push_speed_m_s=60.0", "attacker.push_hold_s=1.5",
+                    "attacker.power_ramp_s=1.0", duration=10.0)
+    alarms = examine_stream(tmp_path / "t.bin", sorted({int(r["prn"]) for r in rows}), 10.0)
+    assert len(alarms) >= 3, "a takeover dragging at 60 m/s parts most PRNs' peaks within 10 s"
+
+    def separation_ns(prn, t):
+        at = lambda src: min((r for r in rows if r["prn"] == prn and r["source"] == src), key=lambda r: abs(r["t_rx_s"] - t))
+        return abs(at("spoof")["pseudorange_m"] - at("legit")["pseudorange_m"]) / 0.299792458
+    for t, alarm in alarms:
+        sep = separation_ns(alarm.prn, t)
+        # not before 500 ns (within the estimator's 0.05 chip step), and within a second (2 looks) after it
+        assert sep > 450.0, f"PRN {alarm.prn}: alarm at {sep:.0f} ns"
+        assert separation_ns(alarm.prn, t - 1.05) < 500.0 or sep < 800.0, f"PRN {alarm.prn}: alarm late ({sep:.0f} ns)"
+
+
+@pytest.mark.parametrize("advantage_db", [0.0, 3.0, 6.0, 10.0])
+def test_amplitude_estimate_from_the_caf_peak(advantage_db):
+    cfg = load_scenario(None, [f"signal.fs_hz={FS}", "time.duration_s=0.06", "constellation.max_satellites=8",
+                               'signal.format="gr_complex"', "attacker.enabled=true",
+                               f"attacker.power_advantage_db={advantage_db}"])
+    truth = []
+    sim = Simulator(cfg)
+    x = np.concatenate(list(sim.chunks(lambda rx, sigs: truth.append(sigs))))
+    errors = []
+    for s in truth[0]:
+        if s.source == "spoof":
+            a_true = np.sqrt(10 ** (s.cn0_dbhz / 10) * 2 * sim.noise_rms ** 2 / FS)
+            errors.append(caf_amplitude(x, FS, 0.0, s.prn, s.code_phase_chips, s.doppler_hz) / a_true - 1)
+    rms = 100 * float(np.sqrt(np.mean(np.square(errors))))
+    print(f"amplitude error at +{advantage_db:g} dB: RMS {rms:.2f} %")
+    assert rms < 5.0, f"amplitude RMS error {rms:.2f} % at +{advantage_db:g} dB"
+
+
+def test_one_spoofed_prn_at_6_db_is_attenuated_by_20_db(tmp_path):
+    """The same scenario rendered with and without the attacker (same seed: same noise and satellites); what the
+    canceller leaves of the spoofer is the cleaned file minus the attack-free one."""
+    common = ["constellation.max_satellites=6", "attacker.prns=[8]", "attacker.power_advantage_db=6.0"]
+    simulate(tmp_path / "a.bin", "attacker.enabled=true", *common, duration=4.0, fmt="gr_complex")
+    simulate(tmp_path / "z.bin", *common, duration=4.0, fmt="gr_complex")
+    x, z = open_iq(tmp_path / "a.bin").read(0, int(4 * FS)), open_iq(tmp_path / "z.bin").read(0, int(4 * FS))
+    caf = acquire(x[: int(0.01 * FS)], FS, [8], DopplerGrid(max_hz=6000, step_hz=333), coherent_ms=2, noncoherent=5)[8]
+    canceller = Canceller(FS)
+    canceller.cancel(refine_peak(x[: int(0.01 * FS)], FS, 0.0, caf.best), 0)
+    y = np.concatenate([canceller.push(x[i:i + 200000]) for i in range(0, x.size, 200000)] + [canceller.flush()])
+    assert y.size == x.size
+    steady = slice(int(2.0 * FS), int(3.9 * FS))
+    spoofer, left = (x - z)[steady], (y - z)[steady]
+    attenuation = 10 * np.log10(np.mean(np.abs(spoofer) ** 2) / np.mean(np.abs(left) ** 2))
+    print(f"attenuation of PRN 8 at +6 dB: {attenuation:.1f} dB")
+    assert attenuation > 20.0, f"attenuation {attenuation:.1f} dB"
+
+
+def _run_defended(path, out, *sets, nav=None):
+    cfg = _receiver_config(None, ['defense.mode="full"', *sets])
+    t0 = time.perf_counter()
+    summary = run_file(path, None, None, None, cfg, out, nav, receiver_factory=DefendedReceiver)
+    events = [json.loads(l) for l in open(out / "events.jsonl")]
+    return summary, list(csv.DictReader(open(out / "fixes.csv"))), events, time.perf_counter() - t0
+
+
+def _horizontal_m(fix):
+    p = np.array([float(fix[k]) for k in ("x_m", "y_m", "z_m")]) - geodetic_to_ecef(np.radians(LAT), np.radians(LON), H)
+    enu = enu_rotation(np.radians(LAT), np.radians(LON)) @ p
+    return float(np.hypot(enu[0], enu[1]))
+
+
+@pytest.mark.parametrize("advantage_db", [3.0, 6.0, 10.0])
+def test_recovered_fixes_land_within_10_m_of_the_truth(tmp_path, brdc_path, advantage_db):
+    simulate(tmp_path / "a.bin", f'constellation.rinex="{brdc_path}"', 'time.start="2022-01-01T00:00:27"',
+             "constellation.max_satellites=8", "attacker.enabled=true", "attacker.offset_east_m=1000.0",
+             f"attacker.power_advantage_db={advantage_db}", duration=22.0)
+    summary, fixes, events, _ = _run_defended(tmp_path / "a.bin", tmp_path / "out", nav=str(brdc_path))
+    kinds = [e["event"] for e in events]
+    assert "spoofing_alarm" in kinds and "cancellation_start" in kinds
+    recovered = [f for f in fixes if f["state"] == "recovered"]
+    assert recovered, f"no recovered fix; states {sorted({f['state'] for f in fixes})}"
+    errors = [_horizontal_m(f) for f in recovered]
+    print(f"+{advantage_db:g} dB: {len(recovered)} recovered fixes, horizontal error mean {np.mean(errors):.2f} m, "
+          f"max {np.max(errors):.2f} m; recovery event {next(e for e in events if e['event'] == 'recovered')}")
+    assert np.max(errors) < 10.0
+    assert not [f for f in fixes if f["state"] == "nominal" and _horizontal_m(f) > 50.0], "a spoofed fix passed as nominal"
+
+
+def test_hostile_attacker_with_five_copies_per_prn_is_bounded(tmp_path, brdc_path):
+    simulate(tmp_path / "h.bin", f'constellation.rinex="{brdc_path}"', 'time.start="2022-01-01T00:00:27"',
+             "constellation.max_satellites=5", "attacker.enabled=true", "attacker.copies=5",
+             "attacker.copy_spacing_s=4e-6", duration=8.0)
+    summary, fixes, events, wall = _run_defended(tmp_path / "h.bin", tmp_path / "out", "defense.max_iterations=3",
+                                                 nav=str(brdc_path))
+    stages = [e["stage"] for e in events if e["event"] == "cancellation_start"]
+    assert stages and max(stages) < 3, stages
+    refused = [e for e in events if e["event"] == "cancellation_refused"]
+    assert refused, "with five copies and three iterations, it must say what it gave up on"
+    summary_event = next(e for e in events if e["event"] == "defense_summary")
+    assert summary_event["gave_up"]
+    assert wall < 8.0 * 20, f"{wall:.0f} s for 8 s of signal"
+    assert all(f["state"] != "nominal" for f in fixes if float(f["t_rx_s"]) > 2.0)
