@@ -195,10 +195,10 @@ def _print_run_summary(summary) -> None:
 
 @main.command()
 @click.option("--out", "out_dir", default="out/demo", show_default=True, type=click.Path(file_okay=False))
-@click.option("--duration", "duration_s", type=float, default=10.0, show_default=True)
+@click.option("--duration", "duration_s", type=float, default=45.0, show_default=True)
 @click.option("--set", "sets", multiple=True, metavar="SECTION.KEY=VALUE", help="override a scenario key")
 def demo(out_dir, duration_s, sets) -> None:
-    """The main job on its built-in scenario: simulate a spoofing attack, then acquire it and compare with truth."""
+    """The main job on its built-in scenario: a spoofing attack, a conventional receiver it fools, and SemperFi."""
     from .eval.demo import run_demo
 
     try:
