@@ -6,6 +6,8 @@ bit at once) is the least-squares estimate P / n smoothed over neighbouring peri
 amplitude is subtracted. Stages can be chained: stage k tracks what stage k - 1 left (the SIC iterations).
 """
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -18,6 +20,7 @@ from ..receiver.correlator import WIPE_TABLE, extended_code
 from ..receiver.tracking import NEXT_SAMPLE, Channel, LoopConfig, initial_state
 
 MOD_TABLE = np.conj(WIPE_TABLE)   # exp(+j 2 pi phase): the carrier as transmitted
+MEASURE_EVERY = 8                 # code periods per attenuation measurement
 
 
 @njit(cache=True, nogil=True)
@@ -25,14 +28,18 @@ def _subtract_kernel(x, base_sample, blocks, amplitudes, code_ext, table):
     n_table = table.size
     for m in range(blocks.shape[0]):
         start = np.int64(blocks[m, 0]) - base_sample
-        n, cp, step = np.int64(blocks[m, 1]), blocks[m, 2], blocks[m, 3]
+        n, step = np.int64(blocks[m, 1]), blocks[m, 3]
+        pos = blocks[m, 2] + 1.0                  # +1: positive, so int() is floor, and indexes code_ext directly
         ph = blocks[m, 4] - np.floor(blocks[m, 4])
         pstep = blocks[m, 5] - np.floor(blocks[m, 5])
-        a = amplitudes[m]
-        for k in range(n):
-            i = start + k
-            if 0 <= i < x.size:
-                x[i] -= a * code_ext[np.int64(np.floor(cp + k * step)) + 1] * table[np.int64(ph * n_table)]
+        a = np.complex64(amplitudes[m])
+        lo, hi = max(0, -start), min(n, x.size - start)
+        pos += lo * step
+        ph = ph + lo * pstep
+        ph -= np.floor(ph)
+        for k in range(lo, hi):
+            x[start + k] -= a * code_ext[np.int64(pos)] * table[np.int64(ph * n_table)]
+            pos += step
             ph += pstep
             if ph >= 1.0:
                 ph -= 1.0
@@ -120,6 +127,7 @@ class AdversaryTrack:
         self._lam = 1.0 / cfg.smoothing_ms
         self._acc_signal = self._acc_residual = self._acc_noise = 0.0
         self._acc_n = 0
+        self._measure_phase = 0
         self.attenuation_db: list[tuple[float, bool]] = []   # per ~1 s window: (dB, only a lower bound)
         self.settled = False
         self.hold_from: float | None = None   # while the loops settle, samples from here on are held back
@@ -129,15 +137,23 @@ class AdversaryTrack:
         return float(self.channel.st[NEXT_SAMPLE])
 
     def process(self, tracked: np.ndarray, work: np.ndarray, base_sample: int) -> None:
-        """Track the spoofer through `tracked` and subtract its replica from `work` (same samples, cleaned so far).
+        """Track the spoofer through `tracked` and subtract its replica from `work` (same samples, cleaned so far)."""
+        self.track(tracked, base_sample)
+        self.apply(work, base_sample)
+
+    def track(self, tracked: np.ndarray, base_sample: int) -> None:
+        """The tracking half: reads samples only, so several tracks can run at once (the kernels release the GIL)."""
+        first_ms = self.channel.ms
+        prompts, _ = self.channel.process(tracked, base_sample)
+        self._tracked = (first_ms, prompts, self.channel.last_blocks)
+
+    def apply(self, work: np.ndarray, base_sample: int) -> None:
+        """The cancelling half: subtract what track() measured from `work`.
 
         Nothing is subtracted while the loops settle; those samples are held back (hold_from) and, once the
         loops have settled, cancelled with the settled replica extended backwards in time.
         """
-        ch = self.channel
-        first_ms = ch.ms
-        prompts, _ = ch.process(tracked, base_sample)
-        blocks = ch.last_blocks
+        first_ms, prompts, blocks = self._tracked
         if prompts.size == 0:
             return
         if self.hold_from is None and not self.settled:
@@ -202,6 +218,10 @@ class AdversaryTrack:
         residual's power / n per period), against the cancelled signal's power. When what is left is below what the
         window can resolve (about 2 noise / sqrt(N)), that resolution is reported, flagged as a lower bound.
         """
+        # one code period in MEASURE_EVERY is enough for the report, and keeps the measurement cheap
+        pick = (np.arange(len(blocks)) + self._measure_phase) % MEASURE_EVERY == 0
+        self._measure_phase = (self._measure_phase + len(blocks)) % MEASURE_EVERY
+        blocks, est = blocks[pick], est[pick]
         beta, power = np.empty(len(blocks), dtype=np.complex128), np.empty(len(blocks))
         _residual_kernel(work, base_sample, blocks, self.channel.code_ext, MOD_TABLE, beta, power)
         ok = np.isfinite(power)
@@ -209,7 +229,7 @@ class AdversaryTrack:
         self._acc_residual += float(np.sum(np.abs(beta[ok]) ** 2))
         self._acc_noise += float(np.sum(power[ok] / blocks[ok, 1]))
         self._acc_n += int(np.sum(ok))
-        if self._acc_n >= 1000:
+        if self._acc_n >= 2000 // MEASURE_EVERY:   # a report every ~2 s
             resolution = 2.0 * self._acc_noise / np.sqrt(self._acc_n)
             residual = self._acc_residual - self._acc_noise
             bound = residual < resolution
@@ -217,6 +237,18 @@ class AdversaryTrack:
                                         bool(bound)))
             self._acc_signal = self._acc_residual = self._acc_noise = 0.0
             self._acc_n = 0
+
+
+_POOL: ThreadPoolExecutor | None = None
+
+
+def _pool() -> ThreadPoolExecutor:
+    """Threads for the tracks' numba kernels (which release the GIL); each track's work is independent, so the
+    result does not depend on how they are scheduled."""
+    global _POOL
+    if _POOL is None:
+        _POOL = ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1)), thread_name_prefix="semperfi-sic")
+    return _POOL
 
 
 @dataclass
@@ -246,8 +278,10 @@ class CancellerStage:
     def push(self, chunk: np.ndarray) -> np.ndarray:
         self._raw = np.concatenate([self._raw, chunk])
         self._work = np.concatenate([self._work, chunk])
-        for prn, tr in list(self.tracks.items()):
-            tr.process(self._raw, self._work, self.base)
+        tracks = list(self.tracks.items())
+        list(_pool().map(lambda item: item[1].track(self._raw, self.base), tracks))
+        for prn, tr in tracks:          # subtracting writes to one buffer: in order
+            tr.apply(self._work, self.base)
             if not tr.channel.locked:   # the spoofer went away (or was never there)
                 del self.tracks[prn]
         done = min([int(tr.next_sample if tr.hold_from is None else tr.hold_from) for tr in self.tracks.values()]

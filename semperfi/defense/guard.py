@@ -43,6 +43,7 @@ class SpoofGuard:
         self.extra_prns: set[int] = set()                # PRNs the user of the guard wants examined too
         self._startup_samples = int(self.d["startup_s"] * fs_hz)
         self._held: list[np.ndarray] = []
+        self._last_cafs: dict = {}
 
     def _emit(self, kind: str, t_s: float, **fields) -> None:
         if self.events is not None:
@@ -89,6 +90,7 @@ class SpoofGuard:
         cafs = acquire(self._raw[:self.window // 2], self.fs_hz, prns, DopplerGrid(0.0, a["doppler_max_hz"], 333.0),
                        self.if_hz, 2, 5, a["pfa"], a["max_peaks"])
         self._present |= {p for p, c in cafs.items() if c.best is not None}
+        self._last_cafs.update(cafs)
         for alarm in self.detector.examine(cafs, t_s, self._raw):
             self.alarmed_prns.add(alarm.prn)
             if self.alarm_t_s is None:
@@ -133,9 +135,11 @@ class SpoofGuard:
                 continue
             del self.pending_verify[prn]
             a = self.cfg["acquisition"]
-            # every PRN present, so that what is left can be told from other PRNs' cross-correlation
-            cafs = acquire(self._clean[:self.window // 2], self.fs_hz, sorted(self._present | {prn}),
-                           DopplerGrid(0.0, a["doppler_max_hz"], 333.0), self.if_hz, 2, 5, a["pfa"], a["max_peaks"])
+            # this PRN around the attacker's Doppler; the others as last examined, so that what is left can be told
+            # from their cross-correlation
+            cafs = dict(self._last_cafs)
+            cafs.update(acquire(self._clean[:self.window // 2], self.fs_hz, [prn], DopplerGrid(peak.doppler_hz, 2000.0, 333.0),
+                                self.if_hz, 2, 5, a["pfa"], a["max_peaks"]))
             caf, target, reason = cafs[prn], None, ""
             cancelled = self._cancelled_code_phases(prn, first)
             if caf.best is not None and any(chips_apart(caf.best.code_phase_chips, c) < 0.6 for c in cancelled):

@@ -33,18 +33,25 @@ def correlate_block(x, start, n, code_ext, code_phase_chips, code_step_chips, ca
     e_re = e_im = p_re = p_im = l_re = l_im = 0.0
     ph = carrier_phase_cycles - np.floor(carrier_phase_cycles)
     step = carrier_step_cycles - np.floor(carrier_step_cycles)
+    # code positions as they advance; +1 keeps them positive so int() is floor (and indexes code_ext directly)
+    pos_e = code_phase_chips + half_spacing_chips + 1.0
+    pos_p = code_phase_chips + 1.0
+    pos_l = code_phase_chips - half_spacing_chips + 1.0
     for k in range(n):
-        pos = code_phase_chips + k * code_step_chips
         w = x[start + k] * table[np.int64(ph * n_table)]
-        pe = code_ext[np.int64(np.floor(pos + half_spacing_chips)) + 1]
-        pp = code_ext[np.int64(np.floor(pos)) + 1]
-        pl = code_ext[np.int64(np.floor(pos - half_spacing_chips)) + 1]
-        e_re += pe * w.real
-        e_im += pe * w.imag
-        p_re += pp * w.real
-        p_im += pp * w.imag
-        l_re += pl * w.real
-        l_im += pl * w.imag
+        pe = code_ext[np.int64(pos_e)]
+        pp = code_ext[np.int64(pos_p)]
+        pl = code_ext[np.int64(pos_l)]
+        wr, wi = w.real, w.imag
+        e_re += pe * wr
+        e_im += pe * wi
+        p_re += pp * wr
+        p_im += pp * wi
+        l_re += pl * wr
+        l_im += pl * wi
+        pos_e += code_step_chips
+        pos_p += code_step_chips
+        pos_l += code_step_chips
         ph += step
         if ph >= 1.0:
             ph -= 1.0
