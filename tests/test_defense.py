@@ -166,3 +166,35 @@ def test_hostile_attacker_with_five_copies_per_prn_is_bounded(tmp_path, brdc_pat
     assert summary_event["gave_up"]
     assert wall < 8.0 * 20, f"{wall:.0f} s for 8 s of signal"
     assert all(f["state"] != "nominal" for f in fixes if float(f["t_rx_s"]) > 2.0)
+
+
+def test_clean_keeps_format_rate_and_length_and_is_deterministic(tmp_path):
+    import hashlib
+    import subprocess
+    import sys
+    simulate(tmp_path / "s.bin", "constellation.max_satellites=4", "attacker.enabled=true", duration=3.0, fmt="ibyte")
+    digests = []
+    for i in (1, 2):
+        r = subprocess.run([sys.executable, "-m", "semperfi.cli", "clean", str(tmp_path / "s.bin"), "-o",
+                            str(tmp_path / f"c{i}.bin")], capture_output=True, text=True, timeout=300)
+        assert r.returncode == 0, r.stderr
+        assert "cancelled" in r.stdout
+        digests.append(hashlib.sha256((tmp_path / f"c{i}.bin").read_bytes()).hexdigest())
+    assert digests[0] == digests[1], "same input, same output, bit for bit"
+    original, cleaned = open_iq(tmp_path / "s.bin"), open_iq(tmp_path / "c1.bin")
+    assert (cleaned.n_samples, cleaned.fs_hz, cleaned.fmt.name) == (original.n_samples, original.fs_hz, "ibyte")
+    events = [json.loads(l)["event"] for l in open(tmp_path / "c1.events.jsonl")]
+    assert "spoofing_alarm" in events and "defense_summary" in events
+
+
+def test_defense_options_are_checked(tmp_path):
+    import subprocess
+    import sys
+    simulate(tmp_path / "s.bin", "constellation.max_satellites=4", duration=0.5)
+    for args, fragment in ((["--adversarial", "loudest"], "--adversarial"), (["--set", 'defense.mode="maybe"'], "--defense")):
+        r = subprocess.run([sys.executable, "-m", "semperfi.cli", "run", str(tmp_path / "s.bin"), "--out",
+                            str(tmp_path / "o"), *args], capture_output=True, text=True, timeout=300)
+        assert r.returncode != 0 and fragment in r.stderr and "Traceback" not in r.stderr, r.stderr
+    r = subprocess.run([sys.executable, "-m", "semperfi.cli", "clean", str(tmp_path / "s.bin"), "-o",
+                        str(tmp_path / "s.bin")], capture_output=True, text=True, timeout=300)
+    assert r.returncode != 0 and "overwrite" in r.stderr
