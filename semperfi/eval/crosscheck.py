@@ -21,11 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..iq.formats import format_by_name, format_by_sigmf_datatype
 from .gnss_sdr import (ITEM_TYPES, IONO_MODELS, TROP_MODELS, LOG_NAME, Fix, error_summary_m, gnss_sdr_version,
                        horizontal_errors_m, run_gnss_sdr)
 
-_BYTES_PER_SAMPLE = {"ibyte": 2, "ishort": 4, "gr_complex": 8}
-_SIGMF_TO_ITEM = {"ci8": "ibyte", "ci16_le": "ishort", "cf32_le": "gr_complex"}
 GPS_UTC_LEAP_S = 18   # GPS - UTC since 2017-01-01; GNSS-SDR's RTKLIB turns GPS time into UTC with its own table
 
 
@@ -44,10 +43,10 @@ def _sidecar_params(iq_path: Path) -> dict:
     if meta.sample_rate_hz is not None:
         params["fs_hz"] = meta.sample_rate_hz
     if meta.datatype is not None:
-        if meta.datatype not in _SIGMF_TO_ITEM:
-            raise CrosscheckError(f"{meta_path}: datatype {meta.datatype!r} is not one GNSS-SDR reads "
-                                  f"({', '.join(_SIGMF_TO_ITEM)})")
-        params["item_type"] = _SIGMF_TO_ITEM[meta.datatype]
+        try:
+            params["item_type"] = format_by_sigmf_datatype(meta.datatype).name
+        except ValueError as exc:
+            raise CrosscheckError(f"{meta_path}: {exc}") from None
     if_hz = meta.implied_if_hz()
     if if_hz is not None:
         params["if_hz"] = if_hz
@@ -148,7 +147,7 @@ def crosscheck(args: argparse.Namespace) -> int:
     if_hz = args.if_hz if args.if_hz is not None else params.get("if_hz", 0.0)
     if fs_hz is None or item_type is None:
         raise CrosscheckError(f"{iq}: no SigMF sidecar says the sample rate/format; give --fs and --format")
-    duration_s = iq.stat().st_size / _BYTES_PER_SAMPLE[item_type] / fs_hz
+    duration_s = iq.stat().st_size / format_by_name(item_type).bytes_per_sample / fs_hz
 
     truth_path = args.truth
     if truth_path is None:
