@@ -64,11 +64,11 @@ def iteration_time(work: Path, fs: float, repeat: int) -> None:
 def recovery_times(work: Path) -> None:
     cases = {
         "attack from the first sample (assisted)": ["attacker.start_s=0.0"],
-        "attack while tracking (starts at 5 s)": ["attacker.start_s=5.0"],
+        "attack while tracking (starts at 15 s, after the first fix)": ["attacker.start_s=15.0"],
     }
     for name, extra in cases.items():
-        path = work / f"recovery-{len(extra[0])}-{extra[0][-3:]}.bin"
-        cfg = load_scenario(None, ["signal.fs_hz=2e6", "time.duration_s=25.0", f'constellation.rinex="{BRDC}"',
+        path = work / f"recovery-{extra[0].split('=')[1]}.bin"
+        cfg = load_scenario(None, ["signal.fs_hz=2e6", "time.duration_s=35.0", f'constellation.rinex="{BRDC}"',
                                    'time.start="2022-01-01T00:00:27"', "constellation.max_satellites=8",
                                    "attacker.enabled=true", "attacker.power_advantage_db=6.0", *extra])
         simulate_to_file(cfg, path)
@@ -82,7 +82,7 @@ def recovery_times(work: Path) -> None:
         recovered = next((e for e in events if e["event"] == "recovered"), None)
         if alarm and recovered:
             print(f"{name}: alarm at {alarm['t_rx_s']:.2f} s, first recovered fix at {recovered['t_rx_s']:.2f} s: "
-                  f"{recovered['time_to_recover_s']:.2f} s of signal; run took {wall:.1f} s for 25 s of signal", flush=True)
+                  f"{recovered['time_to_recover_s']:.2f} s of signal; run took {wall:.1f} s for 35 s of signal", flush=True)
         else:
             print(f"{name}: alarm {alarm and alarm['t_rx_s']}, recovered {recovered}", flush=True)
 
