@@ -7,7 +7,7 @@ the whole of it in fresh processes, and prints wall time and peak RSS of each.
 """
 
 import argparse
-import resource
+import os
 import subprocess
 import sys
 import time
@@ -17,11 +17,13 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def run_child(args: list[str]) -> tuple[float, float]:
+    """Wall time and this child's own peak RSS (MB)."""
     t0 = time.perf_counter()
-    before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    subprocess.run([sys.executable, "-m", "semperfi.cli", *args], check=True, cwd=REPO, stdout=subprocess.DEVNULL)
-    rss = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    return time.perf_counter() - t0, max(rss, before) / 1024
+    proc = subprocess.Popen([sys.executable, "-m", "semperfi.cli", *args], cwd=REPO, stdout=subprocess.DEVNULL)
+    _, status, usage = os.wait4(proc.pid, 0)
+    if status != 0:
+        raise SystemExit(f"semperfi {' '.join(args)} failed")
+    return time.perf_counter() - t0, usage.ru_maxrss / 1024
 
 
 def main() -> None:
@@ -33,10 +35,13 @@ def main() -> None:
     a.work.mkdir(parents=True, exist_ok=True)
     long = a.work / "long.bin"
     if not long.exists():
-        run_child(["sim", "-o", str(long), "--fs", str(a.fs), "--format", "ibyte", "--duration", str(60 * a.minutes)])
+        wall, rss = run_child(["sim", "-o", str(long), "--fs", str(a.fs), "--format", "ibyte", "--duration",
+                               str(60 * a.minutes)])
+        print(f"simulating {a.minutes:g} min at {a.fs / 1e6:g} MSa/s: wall {wall:6.1f} s, peak RSS {rss:6.0f} MB", flush=True)
     short = a.work / "short.bin"
-    n_bytes = int(60 * a.fs) * 2
-    short.write_bytes(long.read_bytes()[:n_bytes]) if not short.exists() else None
+    if not short.exists():   # the first minute, copied without reading the whole file
+        with open(long, "rb") as src, open(short, "wb") as dst:
+            dst.write(src.read(int(60 * a.fs) * 2))
     for path, label in ((short, "1 min"), (long, f"{a.minutes:g} min")):
         wall, rss = run_child(["run", str(path), "--fs", str(a.fs), "--format", "ibyte", "--out", str(a.work / path.stem)])
         print(f"{label:>7} at {a.fs / 1e6:g} MSa/s: wall {wall:6.1f} s, peak RSS {rss:6.0f} MB", flush=True)
