@@ -55,6 +55,17 @@ def test_fast_kernels_equal_their_references():
     subtract_replicas(y, 0, blocks, amps, 5)
     ref = replicas_reference(5000, 0, blocks, amps, 5)
     assert np.max(np.abs(-y - ref)) < np.pi / 4096 * 0.6   # the carrier table's half-cell
+    # the residual measurement: each block's correlation with its unit replica, and its mean power
+    from semperfi.defense.canceller import MOD_TABLE, _residual_kernel
+    from semperfi.gps.codes import ca_code
+    from semperfi.receiver.correlator import extended_code
+    beta, power = np.empty(2, dtype=np.complex128), np.empty(2)
+    _residual_kernel(x[:5000], 0, blocks, extended_code(ca_code(5)), MOD_TABLE, beta, power)
+    unit = [replicas_reference(5000, 0, blocks[i:i + 1], np.ones(1), 5) for i in range(2)]
+    for i, (first, n) in enumerate(blocks[:, :2].astype(int)):
+        seg = slice(first, first + n)
+        assert abs(beta[i] - np.vdot(unit[i][seg], x[seg]) / n) < 1e-3
+        assert power[i] == pytest.approx(np.mean(np.abs(x[seg]) ** 2), rel=1e-5)
 
 
 @pytest.mark.parametrize("sets", [[], ["multipath.enabled=true", "multipath.delay_chips=0.2"],
