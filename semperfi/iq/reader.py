@@ -8,6 +8,8 @@ import os
 from pathlib import Path
 from typing import Iterator
 
+import mmap
+
 import numpy as np
 
 from .formats import (SampleFormat, _finite_float, _positive_float, _short, as_format, decode_items,
@@ -99,7 +101,25 @@ class IqReader:
         start = _count(start_sample, "start_sample")
         stop = self.n_samples if stop_sample is None else min(_count(stop_sample, "stop_sample"), self.n_samples)
         for first in range(start, stop, self.chunk_samples):
-            yield self.read(first, min(self.chunk_samples, stop - first))
+            n = min(self.chunk_samples, stop - first)
+            chunk = self.read(first, n)
+            self._release(first, n)
+            yield chunk
+
+    def _release(self, start_sample: int, n_samples: int) -> None:
+        """Tell the kernel a streamed chunk's pages are done with: a sequential pass then keeps a bounded resident
+        set however long the recording (file pages would otherwise stay mapped, and counted, to the end)."""
+        mm = getattr(self._items, "_mmap", None)
+        if mm is None or not hasattr(mmap, "MADV_DONTNEED"):
+            return
+        page = mmap.PAGESIZE
+        lo = (start_sample * self.fmt.bytes_per_sample) // page * page
+        hi = ((start_sample + n_samples) * self.fmt.bytes_per_sample) // page * page
+        if hi > lo:
+            try:
+                mm.madvise(mmap.MADV_DONTNEED, lo, hi - lo)
+            except (OSError, ValueError):
+                pass   # advice only
 
     def __iter__(self) -> Iterator[np.ndarray]:
         return self.chunks()
