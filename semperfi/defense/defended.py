@@ -6,6 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..gps.constants import CA_CHIP_RATE_HZ, L1_HZ
 from ..receiver.chain import Receiver
 from ..receiver.types import Fix
 from .detector import chips_apart
@@ -43,10 +44,17 @@ class DefendedReceiver:
         self.guard.finish()
 
     def _drop_if_tracking(self, prn: int, peak, peak_sample: int) -> None:
-        """If the conventional chain is locked on the attacker's peak, let it find the legitimate one."""
+        """If the conventional chain is locked on the attacker's peak, let it find the legitimate one.
+
+        The chain runs on cleaned samples, a little behind the raw ones the peak was found in: the peak's code
+        phase is carried to the channel's latest code epoch (where the channel's own code phase is 0)."""
         ch = self.inner.channels.get(prn)
-        around = ch.epoch_around(peak_sample) if ch is not None else None
-        if around is None or chips_apart(around[1] * 1023.0, peak.code_phase_chips) < 0.6:
+        if ch is None or ch.ms == 0:
+            return
+        epoch = float(ch.epoch_sample[(ch.ms - 1) % ch.HISTORY_MS])
+        step = CA_CHIP_RATE_HZ * (1.0 + peak.doppler_hz / L1_HZ) / self.inner.fs_hz
+        adversary_there = (peak.code_phase_chips + (epoch - peak_sample) * step) % 1023.0
+        if chips_apart(adversary_there, 0.0) < 0.6:
             self.inner.drop_channel(prn, "tracking the peak under cancellation")
 
     def _label(self, fix: Fix) -> None:
