@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from semperfi.gps.constants import CA_CHIP_RATE_HZ, SPEED_OF_LIGHT_M_S
+from semperfi.gps.constants import SPEED_OF_LIGHT_M_S
 from semperfi.gps.lnav import decode_subframe
 from semperfi.iq import open_iq
 from semperfi.receiver.acquisition import DopplerGrid, acquire

@@ -69,7 +69,7 @@ def run_demo(out_dir: str | Path, duration_s: float, sets: list[str], progress: 
     yield (f"conventional receiver: {spoofed.size} fixes, {np.mean(spoofed):.0f} m from the truth (spoofed)"
            if spoofed.size else "conventional receiver: no fix (the file is too short to decode the ephemerides)")
     defended_cfg = config.load({**RECEIVER, **DEFENSE}, None, ['defense.mode="full"'])
-    s = run_file(data, None, None, None, defended_cfg, out_dir / "semperfi", receiver_factory=DefendedReceiver)
+    run_file(data, None, None, None, defended_cfg, out_dir / "semperfi", receiver_factory=DefendedReceiver)
     events = [json.loads(line) for line in open(out_dir / "semperfi" / "events.jsonl")]
     alarm = next((e for e in events if e["event"] == "spoofing_alarm"), None)
     recovered = next((e for e in events if e["event"] == "recovered"), None)

@@ -17,7 +17,6 @@ from ..gps.constants import CA_CHIP_RATE_HZ, CHIPS_PER_BIT, L1_WAVELENGTH_M, NAV
 from ..gps.ephemeris import stack_ephemerides
 from ..gps.geometry import geodetic_to_ecef
 from ..gps.lnav import quantize_ephemeris
-from ..gps.time import GpsTime
 from .attacker import AttackPlan
 from .constellation import Constellation, build_constellation
 from .motion import LiveMotion, StaticMotion, TrajectoryMotion
