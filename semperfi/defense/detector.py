@@ -148,6 +148,7 @@ class SpoofingDetector:
         self.tracks: dict[int, list[_Track]] = {}
         self.streak: dict[int, int] = {}
         self.alarmed: set[int] = set()
+        self.first_alarm_s: float | None = None
 
     def _follow(self, prn: int, peaks: list[Peak], t_s: float) -> list[_Track]:
         """Match peaks to the PRN's known tracks (code phase propagated with its Doppler), keep the new ones."""
@@ -193,7 +194,12 @@ class SpoofingDetector:
                 # A newcomer only when the other peak had been there alone for a while (NEWCOMER_AFTER_S, three
                 # looks or more) and this one is new: a weak legitimate peak that comes and goes under a strong
                 # spoofer must not pass for one.
-                settled = t_s - older.first_seen_s >= NEWCOMER_AFTER_S and older.looks - newer.looks >= 3
+                # And only when the attack began after that: once any PRN has raised the alarm near the start, a
+                # peak found later is more likely a legitimate signal surfacing than a new spoofer.
+                first_alarm = self.first_alarm_s if self.first_alarm_s is not None else t_s
+                settled = (first_alarm - older.first_seen_s >= NEWCOMER_AFTER_S and older.looks - newer.looks >= 3)
                 newcomer = newer.code_phase_chips if settled else None
                 alarms.append(Alarm(t_s, prn, pairs[0], newcomer))
+                if self.first_alarm_s is None:
+                    self.first_alarm_s = t_s
         return alarms
