@@ -101,7 +101,6 @@ class CancellerConfig:
     pull_in_ms: int = 300          # nothing is subtracted while the loops settle
     smoothing_ms: int = 16         # time constant of the amplitude/phase estimate
     max_stages: int = 3
-    refine_doppler_hz: float = 300.0
 
 
 def refine_peak(samples: np.ndarray, fs_hz: float, if_hz: float, peak: Peak) -> Peak:
@@ -135,11 +134,6 @@ class AdversaryTrack:
     @property
     def next_sample(self) -> float:
         return float(self.channel.st[NEXT_SAMPLE])
-
-    def process(self, tracked: np.ndarray, work: np.ndarray, base_sample: int) -> None:
-        """Track the spoofer through `tracked` and subtract its replica from `work` (same samples, cleaned so far)."""
-        self.track(tracked, base_sample)
-        self.apply(work, base_sample)
 
     def track(self, tracked: np.ndarray, base_sample: int) -> None:
         """The tracking half: reads samples only, so several tracks can run at once (the kernels release the GIL)."""

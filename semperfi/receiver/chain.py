@@ -61,7 +61,6 @@ class Receiver:
         self.channels: dict[int, Channel] = {}
         self.decoders: dict[int, NavDecoder] = {}
         self.warm: dict[int, float] = {}            # PRN -> last Doppler, for warm re-acquisition after a loss
-        self.last_cafs: dict[int, Caf] = {}
         self.subframes_by_prn: dict[int, int] = {}
         self.stats = RunStats()
         self.iono = assisted.iono if assisted else None
@@ -107,7 +106,6 @@ class Receiver:
         for prn, doppler in list(self.warm.items()):
             if prn not in self.channels:
                 cafs.update(self._search(samples, [prn], center_hz=doppler, span_hz=1000.0))
-        self.last_cafs.update(cafs)
         found = [c for c in cafs.values() if c.best is not None]
         found.sort(key=lambda c: -c.best.metric)
         for caf in found:
