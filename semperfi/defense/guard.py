@@ -13,7 +13,7 @@ from .canceller import Canceller, CancellerConfig, caf_amplitude, refine_peak
 from .detector import Alarm, DetectorConfig, SpoofingDetector, auxiliary_peaks, chips_apart
 from .policy import choose, parse_policy
 
-WINDOW_MS = 20     # samples kept for examinations: 10 ms of acquisition + 20 ms for the two-path test
+WINDOW_MS = 20     # samples kept for examinations: acquisition looks at the first 10 ms, the two-path test at all 20
 
 
 class SpoofGuard:
@@ -80,15 +80,19 @@ class SpoofGuard:
         self._cleaned += cleaned.size
         return cleaned
 
+    def _acquire(self, window: np.ndarray, prns, center_hz: float, span_hz: float):
+        """Every examination's search: the window's first 10 ms, 2 ms coherent x 5, 333 Hz Doppler bins."""
+        a = self.cfg["acquisition"]
+        return acquire(window[:self.window // 2], self.fs_hz, prns, DopplerGrid(center_hz, span_hz, 333.0),
+                       self.if_hz, 2, 5, a["pfa"], a["max_peaks"])
+
     def _examine(self) -> None:
         t_s = (self._seen - self.window) / self.fs_hz
         full = self._seen >= self._next_full or not self._present
         prns = list(range(1, 33)) if full else sorted(self._present | self.extra_prns)
         if full:
             self._next_full = self._seen + int(self.d["full_search_every_s"] * self.fs_hz)
-        a = self.cfg["acquisition"]
-        cafs = acquire(self._raw[:self.window // 2], self.fs_hz, prns, DopplerGrid(0.0, a["doppler_max_hz"], 333.0),
-                       self.if_hz, 2, 5, a["pfa"], a["max_peaks"])
+        cafs = self._acquire(self._raw, prns, 0.0, self.cfg["acquisition"]["doppler_max_hz"])
         self._present |= {p for p, c in cafs.items() if c.best is not None}
         self._last_cafs.update(cafs)
         for alarm in self.detector.examine(cafs, t_s, self._raw):
@@ -134,12 +138,10 @@ class SpoofGuard:
             if t_s < when or self._clean.size < self.window:
                 continue
             del self.pending_verify[prn]
-            a = self.cfg["acquisition"]
             # this PRN around the attacker's Doppler; the others as last examined, so that what is left can be told
             # from their cross-correlation
             cafs = dict(self._last_cafs)
-            cafs.update(acquire(self._clean[:self.window // 2], self.fs_hz, [prn], DopplerGrid(peak.doppler_hz, 2000.0, 333.0),
-                                self.if_hz, 2, 5, a["pfa"], a["max_peaks"]))
+            cafs.update(self._acquire(self._clean, [prn], peak.doppler_hz, 2000.0))
             caf, target, reason = cafs[prn], None, ""
             cancelled = self._cancelled_code_phases(prn, first)
             if caf.best is not None and any(chips_apart(caf.best.code_phase_chips, c) < 0.6 for c in cancelled):
