@@ -120,7 +120,7 @@ def acquire(file, fs_hz, fmt, if_hz, prn_text, start_s, coherent_ms, noncoherent
 @click.option("--nav", "nav_path", type=click.Path(dir_okay=False), help="RINEX navigation file (assisted mode)")
 @click.option("--out", "out_dir", default="out/run", show_default=True, type=click.Path(file_okay=False))
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), help="receiver TOML configuration")
-@click.option("--defense", type=click.Choice(["off", "detect", "full"]), help="SemperFi's defence (default off)")
+@click.option("--defense", type=click.Choice(["off", "detect", "full"]), help="SemperFi's defence (default full; off = the conventional receiver)")
 @click.option("--adversarial", help="which peak is the attacker's: auto | stronger | later | prn:LIST")
 @click.option("--set", "sets", multiple=True, metavar="SECTION.KEY=VALUE", help="override a configuration key")
 def run(file, fs_hz, fmt, if_hz, nav_path, out_dir, config_path, defense, adversarial, sets) -> None:

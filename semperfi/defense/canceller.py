@@ -6,6 +6,7 @@ bit at once) is the least-squares estimate P / n smoothed over neighbouring peri
 amplitude is subtracted. Stages can be chained: stage k tracks what stage k - 1 left (the SIC iterations).
 """
 
+import copy
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -111,18 +112,43 @@ def refine_peak(samples: np.ndarray, fs_hz: float, if_hz: float, peak: Peak) -> 
     return near[0] if near else peak
 
 
+def code_correlation(offset_chips: float) -> float:
+    """The C/A code's normalised autocorrelation at an offset: the triangle (sidelobes, -24 dB, neglected)."""
+    return max(0.0, 1.0 - abs(offset_chips))
+
+
+# A legitimate peak closer than this to the spoofer's leaks into the spoofer's amplitude estimate (the code
+# autocorrelation at their offset): both amplitudes are then estimated jointly.
+JOINT_WITHIN_CHIPS = 1.2
+PROBE_HALF_SPACING_CHIPS = 0.25   # where the legitimate signal's offset is measured, either side of it
+OFFSET_GAIN = 0.3                 # fraction of each measured offset error applied per tracked buffer
+PROBE_PAD_CHIPS = 3               # > JOINT_WITHIN_CHIPS + PROBE_HALF_SPACING_CHIPS + a block's starting phase
+
+
 class AdversaryTrack:
-    """One spoofed signal followed and cancelled, with what it measured of its own cancellation."""
+    """One spoofed signal followed and cancelled, with what it measured of its own cancellation.
+
+    When the legitimate peak of the same PRN lies within about a chip (legit_offset_chips: its code phase minus the
+    spoofer's, at the same instant), the spoofer's prompt holds a share of the legitimate signal (the codes'
+    autocorrelation at that offset). Subtracting it would carve an anti-echo into the legitimate signal and bias its
+    tracking, so each code period's two amplitudes are solved together from the spoofer's prompt and a probe
+    correlator at the legitimate signal's offset; the offset itself is followed by an early-late pair of probes.
+    """
 
     def __init__(self, prn: int, fs_hz: float, if_hz: float, peak: Peak, peak_sample: int, start_after_sample: int,
-                 cfg: CancellerConfig, stage: int):
+                 cfg: CancellerConfig, stage: int, legit_offset_chips: float | None = None):
         self.prn, self.stage, self.cfg = prn, stage, cfg
+        self.legit_offset_chips = legit_offset_chips
+        code = ca_code(prn)   # wrapped by more than the largest probe offset on each side
+        self._probe_code = np.concatenate([code[-PROBE_PAD_CHIPS:], code, code[:PROBE_PAD_CHIPS]]).astype(np.float32)
         loop = LoopConfig(pll_bw_hz=cfg.pll_bw_hz, dll_bw_hz=cfg.dll_bw_hz, pull_in_ms=cfg.pull_in_ms,
                           min_cn0_dbhz=20.0, dll_narrow_bw_hz=cfg.narrow_dll_bw_hz,
                           narrow_after_ms=cfg.narrow_after_ms, spacing_chips=cfg.spacing_chips)
         st = initial_state(peak.code_phase_chips, peak_sample, peak.doppler_hz, fs_hz, start_after_sample)
         self.channel = Channel(prn, fs_hz, if_hz, st, loop)
         self._ref = 0j                 # smoothed complex amplitude (bit removed)
+        self._legit_ref = 0j           # the same for a legitimate signal within a chip
+        self._legit_est: np.ndarray | None = None   # its amplitude per code period of the last buffer
         self._lam = 1.0 / cfg.smoothing_ms
         self._acc_signal = self._acc_residual = self._acc_noise = 0.0
         self._acc_n = 0
@@ -138,8 +164,69 @@ class AdversaryTrack:
     def track(self, tracked: np.ndarray, base_sample: int) -> None:
         """The tracking half: reads samples only, so several tracks can run at once (the kernels release the GIL)."""
         first_ms = self.channel.ms
+        before = copy.deepcopy(self.channel) if self._joint() else None
         prompts, _ = self.channel.process(tracked, base_sample)
-        self._tracked = (first_ms, prompts, self.channel.last_blocks)
+        blocks = self.channel.last_blocks
+        self._probes = None
+        if before is not None and prompts.size:
+            # A legitimate signal within a chip pulls the spoofer's early-late balance: estimate it from this pass,
+            # take it out of the samples, and track the same samples again from the same loop state.
+            self._probes = self._probe(tracked, base_sample, blocks)
+            legit = self._legit_amplitudes(prompts / blocks[:, 1], self._probes[1])
+            without_legit = np.array(tracked, copy=True)
+            moved = self._moved(blocks, 0.0)
+            _subtract_kernel(without_legit, base_sample, moved, legit, self._probe_code, MOD_TABLE)
+            self.channel = before
+            prompts, _ = self.channel.process(without_legit, base_sample)
+            blocks = self.channel.last_blocks
+            # where the legitimate signal is, measured against the spoofer's unpulled replica
+            self._probes = self._probe(tracked, base_sample, blocks)
+            self._legit_est = self._legit_amplitudes(prompts / blocks[:, 1], self._probes[1], update=False)
+        self._tracked = (first_ms, prompts, blocks)
+
+    def _moved(self, blocks: np.ndarray, shift_chips: float) -> np.ndarray:
+        """The blocks' replicas moved to the legitimate signal's offset (+ shift), for the padded probe code (the
+        kernels read code[floor(phase) + 1])."""
+        moved = blocks.copy()
+        moved[:, 2] += self.legit_offset_chips + shift_chips + PROBE_PAD_CHIPS - 1
+        return moved
+
+    def _legit_amplitudes(self, alphas: np.ndarray, beta: np.ndarray, update: bool = True) -> np.ndarray:
+        """The legitimate signal's amplitude per code period (in the spoofer's carrier frame) from the joint solve,
+        smoothed with its own data bits decided against a running reference."""
+        r = code_correlation(self.legit_offset_chips)
+        raw = (np.nan_to_num(beta) - r * alphas) / (1.0 - r * r)
+        est = np.empty_like(raw)
+        ref = self._legit_ref if self._legit_ref != 0 else (raw[0] if raw.size else 0j)
+        for i, a in enumerate(raw):
+            bit = 1.0 if (a * np.conj(ref)).real >= 0 else -1.0
+            ref = ref + self._lam * (a * bit - ref)
+            est[i] = ref * bit
+        if update:
+            self._legit_ref = ref
+        return est
+
+    def _joint(self) -> bool:
+        return self.legit_offset_chips is not None and abs(self.legit_offset_chips) < JOINT_WITHIN_CHIPS
+
+    def _probe(self, x: np.ndarray, base_sample: int, blocks: np.ndarray) -> np.ndarray:
+        """Per code period, the correlations with the spoofer's replica moved to the legitimate signal's offset and
+        to either side of it (rows: offset - h, offset, offset + h)."""
+        out = np.empty((3, len(blocks)), dtype=np.complex128)
+        power = np.empty(len(blocks))
+        for row, shift in enumerate((-PROBE_HALF_SPACING_CHIPS, 0.0, PROBE_HALF_SPACING_CHIPS)):
+            _residual_kernel(x, base_sample, self._moved(blocks, shift), self._probe_code, MOD_TABLE, out[row], power)
+        return out
+
+    def _follow_legit(self, probes: np.ndarray, est: np.ndarray) -> None:
+        """Move the legitimate signal's offset toward the early-late balance of the probes (the spoofer's own share
+        in each probe taken out first), non-coherently over the buffer."""
+        h, d = PROBE_HALF_SPACING_CHIPS, self.legit_offset_chips
+        ok = np.isfinite(probes).all(axis=0)
+        early = np.sum(np.abs(probes[0, ok] - code_correlation(d - h) * est[ok]) ** 2)
+        late = np.sum(np.abs(probes[2, ok] - code_correlation(d + h) * est[ok]) ** 2)
+        if early + late > 0:
+            self.legit_offset_chips = d + OFFSET_GAIN * (1.0 - h) / 2.0 * float((late - early) / (early + late))
 
     def apply(self, work: np.ndarray, base_sample: int) -> None:
         """The cancelling half: subtract what track() measured from `work`.
@@ -157,15 +244,19 @@ class AdversaryTrack:
             return
         i0 = int(np.argmax(settled))
         blocks, alphas = blocks[i0:], prompts[i0:] / blocks[i0:, 1]   # least squares: unit-modulus replica
+        probes = None if self._probes is None else self._probes[:, i0:]
+        legit = None if self._legit_est is None else self._legit_est[i0:]
         if not self.settled:
             self._ref = alphas[0]
         est = self._smooth(alphas)
+        if probes is not None:
+            self._follow_legit(probes, est)
         if not self.settled:
             self.settled = True
             self._backfill(work, base_sample, blocks[0], est[0])
             self.hold_from = None
         subtract_replicas(work, base_sample, blocks, est, self.prn)
-        self._measure(work, base_sample, blocks, est)
+        self._measure(work, base_sample, blocks, est, legit)
 
     def _smooth(self, alphas: np.ndarray, ref: complex | None = None) -> np.ndarray:
         """Decision-directed smoothing: each period's bit is its sign against the running reference."""
@@ -205,7 +296,7 @@ class AdversaryTrack:
         self._ref = saved
         subtract_replicas(work, base_sample, blocks[ok], est, self.prn)
 
-    def _measure(self, work, base_sample, blocks, est) -> None:
+    def _measure(self, work, base_sample, blocks, est, legit=None) -> None:
         """What is left at the replica: the attenuation this track achieves (noise-corrected powers).
 
         Over a window of N code periods, the residual's power at the replica, less the noise's share (the
@@ -218,6 +309,8 @@ class AdversaryTrack:
         blocks, est = blocks[pick], est[pick]
         beta, power = np.empty(len(blocks), dtype=np.complex128), np.empty(len(blocks))
         _residual_kernel(work, base_sample, blocks, self.channel.code_ext, MOD_TABLE, beta, power)
+        if legit is not None:   # a legitimate signal within a chip is seen at the replica too: not a residual
+            beta = beta - code_correlation(self.legit_offset_chips) * legit[pick]
         ok = np.isfinite(power)
         self._acc_signal += float(np.sum(np.abs(est[ok]) ** 2))
         self._acc_residual += float(np.sum(np.abs(beta[ok]) ** 2))
@@ -263,9 +356,9 @@ class CancellerStage:
     def end_sample(self) -> int:
         return self.base + self._raw.size
 
-    def add(self, peak: Peak, peak_sample: int) -> AdversaryTrack:
+    def add(self, peak: Peak, peak_sample: int, legit_offset_chips: float | None = None) -> AdversaryTrack:
         track = AdversaryTrack(peak.prn, self.fs_hz, self.if_hz, peak, peak_sample, self.end_sample, self.cfg,
-                               self.index)
+                               self.index, legit_offset_chips)
         self.tracks[peak.prn] = track
         return track
 
@@ -305,15 +398,20 @@ class Canceller:
     def prns(self) -> set[int]:
         return {p for s in self.stages for p in s.tracks}
 
-    def cancel(self, peak: Peak, peak_sample: int, stage: int = 0) -> AdversaryTrack | None:
-        """Start cancelling a peak at the given stage (0 = the first pass); None past the iteration bound."""
+    def cancel(self, peak: Peak, peak_sample: int, stage: int = 0,
+               legit_code_phase_chips: float | None = None) -> AdversaryTrack | None:
+        """Start cancelling a peak at the given stage (0 = the first pass); None past the iteration bound.
+        legit_code_phase_chips: where the same PRN's legitimate peak is, at the same instant, when known."""
         if stage >= self.cfg.max_stages:
             return None
         while len(self.stages) <= stage:   # a new stage takes the previous one's output from its next sample on
             st = CancellerStage(self.fs_hz, self.if_hz, len(self.stages), self.cfg)
             st.base = self.stages[-1].base if self.stages else self._emitted
             self.stages.append(st)
-        return self.stages[stage].add(peak, peak_sample)
+        offset = None
+        if legit_code_phase_chips is not None:
+            offset = (legit_code_phase_chips - peak.code_phase_chips + 511.5) % CA_CODE_LENGTH_CHIPS - 511.5
+        return self.stages[stage].add(peak, peak_sample, offset)
 
     def push(self, chunk: np.ndarray) -> np.ndarray:
         """Samples in; cleaned samples out, in order, a little behind (each stage holds back a code period)."""
@@ -336,8 +434,11 @@ class Canceller:
         out: dict[int, list[dict]] = {}
         for st in self.stages:
             for prn, tr in st.tracks.items():
-                out.setdefault(prn, []).append({"stage": st.index,
-                                                "attenuation_db": [f">={v}" if lower else v for v, lower in tr.attenuation_db]})
+                entry = {"stage": st.index,
+                         "attenuation_db": [f">={v}" if lower else v for v, lower in tr.attenuation_db]}
+                if tr.legit_offset_chips is not None:
+                    entry["legit_offset_chips"] = round(float(tr.legit_offset_chips), 3)
+                out.setdefault(prn, []).append(entry)
         return out
 
 

@@ -2,7 +2,7 @@
 
 DEFAULTS: dict = {
     "defense": {
-        "mode": "off",              # off | detect | full
+        "mode": "full",             # off | detect | full
         "examine_every_s": 1.0,     # re-acquisition for auxiliary peaks while tracking, as the paper does
         "startup_s": 0.3,           # output held back at the start while the first looks (every 0.1 s) decide, so an
                                     # attack present from the first sample is cancelled from the first sample
@@ -13,5 +13,7 @@ DEFAULTS: dict = {
         "max_iterations": 3,        # SIC stages per PRN
         "max_tracks": 24,           # spoofed signals cancelled at once, all PRNs together
         "verify_after_s": 1.0,      # re-acquisition on the cleaned signal this long after a cancellation starts
+        "min_redundancy": 2,        # a recovered fix has at least 4 + this many satellites: its integrity test can
+                                    # both detect and exclude one bad range
     },
 }

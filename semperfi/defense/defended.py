@@ -37,7 +37,11 @@ class DefendedReceiver:
 
     def feed(self, chunk: np.ndarray) -> None:
         self.guard.extra_prns = set(self.inner.channels)
-        self.inner.feed(self.guard.push(chunk))
+        cleaned = self.guard.push(chunk)
+        if self.guard.alarm_t_s is not None and self.guard.d["mode"] == "full":
+            # once the attack is known, fixes are built from resolved PRNs only, while enough of them remain
+            self.inner.excluded_prns = {p for p in self.inner.channels if not self.guard.resolved(p)}
+        self.inner.feed(cleaned)
 
     def finish(self) -> None:
         self.inner.feed(self.guard.flush())
@@ -58,19 +62,21 @@ class DefendedReceiver:
             self.inner.drop_channel(prn, "tracking the peak under cancellation")
 
     def _label(self, fix: Fix) -> None:
-        """No fix built on a suspect peak is nominal: after an alarm it is spoofing_detected (detect only), then
-        recovering while any PRN it uses is not verified clean, then recovered."""
+        """What a fix is built on. Before any alarm it is nominal unless its ranges disagree (integrity test failed:
+        unverified). After an alarm it is spoofing_detected (detect only), then recovering until every PRN it uses is
+        resolved (verified clean after cancellation, or examined and found to hold one signal), and its ranges pass
+        the integrity test with redundancy to spare: a mix of legitimate and spoofed ranges, or a fix that cannot be
+        checked, is never recovered."""
         g = self.guard
-        state = "nominal"
-        if g.alarm_t_s is not None:
-            if g.d["mode"] != "full" or not g.cancel_started:
-                state = "spoofing_detected"
-            else:
-                # recovered only from verified PRNs, and only when the pseudoranges agree with each other: a fix
-                # mixing legitimate and spoofed ranges shows it in its residuals
-                suspect = [p for p in fix.prns if p in g.alarmed_prns and p not in g.verified]
-                consistent = fix.residual_rms_m < MAX_RECOVERED_RESIDUAL_M
-                state = "recovering" if suspect or g.gave_up or not consistent else "recovered"
+        integrity = getattr(fix, "raim", "pass")
+        if g.alarm_t_s is None:
+            state = "unverified" if integrity == "fail" else "nominal"
+        elif g.d["mode"] != "full" or not g.cancel_started:
+            state = "spoofing_detected"
+        else:
+            checked = (integrity in ("pass", "excluded") and fix.n_sats - 4 >= g.d["min_redundancy"]
+                       and fix.residual_rms_m < MAX_RECOVERED_RESIDUAL_M)
+            state = "recovered" if checked and all(g.resolved(p) for p in fix.prns) else "recovering"
         if state == "recovered" and self.first_recovered_t_s is None:
             self.first_recovered_t_s = fix.t_rx_s
             if self.events is not None:

@@ -29,6 +29,12 @@ class DetectorConfig:
     confirmations: int = 2                # consecutive examinations that must see the pair
     two_path: bool = True
     two_path_pfa: float = 1e-4
+    # Once the attack is known to be present (any PRN alarmed), every PRN is examined at the highest sensitivity: a
+    # second signal closer than `separation_s` (down to what the two-path fit can resolve) is the attacker's until
+    # it is resolved, found with a longer window and a laxer false-alarm rate (a false alarm now costs a
+    # cancellation that verification undoes, a miss costs a spoofed range in a fix labelled recovered).
+    sensitive_separation_chips: float = 0.2
+    sensitive_two_path_pfa: float = 1e-3
 
     @property
     def separation_chips(self) -> float:
@@ -103,10 +109,14 @@ def _signal(prn: int, code_phase_chips: float, doppler_hz: float, t_s: np.ndarra
     return ca_code(prn)[chips] * np.exp(2j * np.pi * doppler_hz * t_s)
 
 
-def hidden_pair(samples: np.ndarray, fs_hz: float, if_hz: float, main: Peak, cfg: DetectorConfig) -> PeakPair | None:
+def hidden_pair(samples: np.ndarray, fs_hz: float, if_hz: float, main: Peak, cfg: DetectorConfig,
+                sensitive: bool = False) -> PeakPair | None:
     """A second signal under the main peak, more than the separation away (None when there is none)."""
-    fit = two_path_test(samples, fs_hz, main.prn, main.code_phase_chips, main.doppler_hz, if_hz, pfa=cfg.two_path_pfa)
-    if not fit.significant or fit.separation_chips <= cfg.separation_chips:
+    n_blocks = int(samples.size // round(fs_hz * 1e-3))
+    fit = two_path_test(samples, fs_hz, main.prn, main.code_phase_chips, main.doppler_hz, if_hz, n_blocks=n_blocks,
+                        pfa=cfg.sensitive_two_path_pfa if sensitive else cfg.two_path_pfa)
+    separation = cfg.sensitive_separation_chips if sensitive else cfg.separation_chips
+    if not fit.significant or fit.separation_chips <= separation:
         return None
     # the two peaks' metrics, apportioned from the main peak's by the fitted power ratio
     ratio = 10 ** (fit.power_ratio_db / 10)
@@ -149,6 +159,8 @@ class SpoofingDetector:
         self.streak: dict[int, int] = {}
         self.alarmed: set[int] = set()
         self.first_alarm_s: float | None = None
+        self.single_looks: dict[int, int] = {}   # PRN -> consecutive sensitive looks that found one signal only
+        self.close: dict[int, PeakPair] = {}     # PRN -> a second signal under its peak, too close to cancel yet
 
     def _follow(self, prn: int, peaks: list[Peak], t_s: float) -> list[_Track]:
         """Match peaks to the PRN's known tracks (code phase propagated with its Doppler), keep the new ones."""
@@ -171,21 +183,40 @@ class SpoofingDetector:
         self.tracks[prn] = [tr for tr in known if tr in matched or t_s - tr.t_s < 10.0]
         return matched
 
+    @property
+    def sensitive(self) -> bool:
+        """The attack is known to be present: every PRN is examined at the highest sensitivity."""
+        return self.first_alarm_s is not None
+
     def examine(self, cafs: dict[int, Caf], t_s: float, samples: np.ndarray | None = None) -> list[Alarm]:
-        """One acquisition's verdict: alarms for PRNs whose pair has now been seen cfg.confirmations times."""
+        """One acquisition's verdict: alarms for PRNs whose pair has now been seen cfg.confirmations times.
+
+        A PRN that cannot be examined (too weak, or explained as cross-talk) counts as not examined: its single-look
+        streak starts again."""
         alarms = []
+        sensitive = self.sensitive
         for prn, caf in cafs.items():
             if not _examinable(caf.best, caf, cafs, self.cfg, self.fs_hz):
+                self.single_looks[prn] = 0
                 continue
             pairs = auxiliary_peaks(caf, cafs, self.cfg, self.fs_hz)
             if not pairs and self.cfg.two_path and samples is not None:
-                hidden = hidden_pair(samples, self.fs_hz, self.if_hz, caf.best, self.cfg)
+                hidden = hidden_pair(samples, self.fs_hz, self.if_hz, caf.best, self.cfg, sensitive)
                 pairs = [hidden] if hidden else []
             peaks = [caf.best] + [p.auxiliary for p in pairs]
             tracks = self._follow(prn, [pairs[0].main, pairs[0].auxiliary] if pairs else peaks[:1], t_s)
             if not pairs:
                 self.streak[prn] = 0
+                self.close.pop(prn, None)
+                self.single_looks[prn] = self.single_looks.get(prn, 0) + 1 if sensitive and samples is not None else 0
                 continue
+            self.single_looks[prn] = 0
+            if pairs[0].separation_chips <= self.cfg.separation_chips:
+                # a second signal closer than the alarm's separation, seen once the attack is known: the PRN is
+                # suspect (never counted clean) but not cancelled, since its peaks cannot be told apart yet
+                self.close[prn] = pairs[0]
+                continue
+            self.close.pop(prn, None)
             self.streak[prn] = self.streak.get(prn, 0) + 1
             if self.streak[prn] >= self.cfg.confirmations and prn not in self.alarmed:
                 self.alarmed.add(prn)

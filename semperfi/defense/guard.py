@@ -13,7 +13,8 @@ from .canceller import Canceller, CancellerConfig, caf_amplitude, refine_peak
 from .detector import Alarm, DetectorConfig, SpoofingDetector, auxiliary_peaks, chips_apart
 from .policy import choose, parse_policy
 
-WINDOW_MS = 20     # samples kept for examinations: acquisition looks at the first 10 ms, the two-path test at all 20
+WINDOW_MS = 40     # samples kept for examinations: acquisition looks at the first 10 ms, the two-path test at the
+                   # first 20 (all 40 once the attack is known: the highest sensitivity)
 
 
 class SpoofGuard:
@@ -58,7 +59,7 @@ class SpoofGuard:
         starting = self.d["mode"] != "off" and self._seen < self._startup_samples
         if self.d["mode"] != "off" and self._seen >= self._next_exam and self._raw.size >= self.window:
             self._examine()
-            every = 0.1 if starting else self.d["examine_every_s"]
+            every = 0.1 if starting else self.d["examine_every_s"] / (2.0 if self.detector.sensitive else 1.0)
             self._next_exam = self._seen + int(every * self.fs_hz)
         if starting:                      # hold the first samples until the first looks have decided
             self._held.append(chunk)
@@ -67,6 +68,7 @@ class SpoofGuard:
             chunk = np.concatenate(self._held + [chunk])
             self._held = []
         cleaned = self.canceller.push(chunk)
+        self._forget_lost(self._seen / self.fs_hz)
         self._cleaned += cleaned.size
         self._clean = np.concatenate([self._clean, cleaned])[-self.window:]
         self._verify()
@@ -83,7 +85,7 @@ class SpoofGuard:
     def _acquire(self, window: np.ndarray, prns, center_hz: float, span_hz: float):
         """Every examination's search: the window's first 10 ms, 2 ms coherent x 5, 333 Hz Doppler bins."""
         a = self.cfg["acquisition"]
-        return acquire(window[:self.window // 2], self.fs_hz, prns, DopplerGrid(center_hz, span_hz, 333.0),
+        return acquire(window[:self.window // 4], self.fs_hz, prns, DopplerGrid(center_hz, span_hz, 333.0),
                        self.if_hz, 2, 5, a["pfa"], a["max_peaks"])
 
     def _examine(self) -> None:
@@ -95,7 +97,8 @@ class SpoofGuard:
         cafs = self._acquire(self._raw, prns, 0.0, self.cfg["acquisition"]["doppler_max_hz"])
         self._present |= {p for p, c in cafs.items() if c.best is not None}
         self._last_cafs.update(cafs)
-        for alarm in self.detector.examine(cafs, t_s, self._raw):
+        looked = self._raw if self.detector.sensitive else self._raw[:self.window // 2]
+        for alarm in self.detector.examine(cafs, t_s, looked):
             self.alarmed_prns.add(alarm.prn)
             if self.alarm_t_s is None:
                 self.alarm_t_s = t_s
@@ -112,10 +115,10 @@ class SpoofGuard:
             self._emit("cancellation_refused", t_s, prn=alarm.prn, reason=self.gave_up[alarm.prn])
             return
         peak_sample = self._seen - self.window
-        peak = refine_peak(self._raw[:self.window // 2], self.fs_hz, self.if_hz, choice.adversarial)
+        peak = refine_peak(self._raw[:self.window // 4], self.fs_hz, self.if_hz, choice.adversarial)
         amplitude = caf_amplitude(self._raw, self.fs_hz, self.if_hz, peak.prn, peak.code_phase_chips, peak.doppler_hz)
         stage = sum(1 for s in self.canceller.stages if alarm.prn in s.tracks)
-        if self.canceller.cancel(peak, peak_sample, stage) is None:
+        if self.canceller.cancel(peak, peak_sample, stage, choice.legitimate.code_phase_chips) is None:
             self.gave_up[alarm.prn] = f"still spoofed after {stage} SIC iterations"
             self._emit("cancellation_refused", t_s, prn=alarm.prn, reason=self.gave_up[alarm.prn])
             return
@@ -162,6 +165,27 @@ class SpoofGuard:
                 self._emit("cancellation_refused", t_s, prn=prn, reason=self.gave_up[prn])
             else:
                 self.pending_verify[prn] = (t_s + self.d["verify_after_s"], target, stage + 1)
+
+    def resolved(self, prn: int) -> bool:
+        """Whether a PRN is known to carry the legitimate signal only: alarmed, cancelled and verified clean with its
+        cancellation still running; or, never alarmed, examined at the highest sensitivity (after the attack became
+        known) and found to hold a single signal in the last two looks."""
+        if prn in self.gave_up:
+            return False
+        if prn in self.alarmed_prns:
+            return prn in self.verified and prn not in self.pending_verify
+        return self.detector.single_looks.get(prn, 0) >= 2 and prn not in self.detector.close
+
+    def _forget_lost(self, t_s: float) -> None:
+        """A PRN whose every cancellation track lost the spoofer is examined afresh: alarmed again if the spoofer is
+        still there (its verification no longer holds)."""
+        for prn in [p for p in self.cancel_started if p not in self.canceller.prns]:
+            del self.cancel_started[prn]
+            self.verified.discard(prn)
+            self.pending_verify.pop(prn, None)
+            self.alarmed_prns.discard(prn)
+            self.detector.alarmed.discard(prn)
+            self._emit("cancellation_lost", t_s, prn=prn)
 
     def _cancelled_code_phases(self, prn: int, sample: int) -> list[float]:
         """Where the attacker's peaks under cancellation are, in chips, at an absolute sample."""

@@ -73,6 +73,9 @@ class Receiver:
         self._t_rx0: float | None = None            # receiver clock (GPS s of week) at sample 0
         self._week: int | None = week_hint
         self.last_fix: Fix | None = None
+        # PRNs a supervisor (the defence) distrusts: left out of fixes while enough others remain
+        self.excluded_prns: set[int] = set()
+        self.min_sats_excluding = 5
 
     # -- events ---------------------------------------------------------------------------------------------
     def _emit(self, kind: str, t_rx_s: float, **fields) -> None:
@@ -258,6 +261,9 @@ class Receiver:
 
     def _fix_at(self, sample: float) -> None:
         raw = self.observations_at(sample)
+        trusted = [r for r in raw if r[0] not in self.excluded_prns]
+        if len(trusted) >= self.min_sats_excluding:
+            raw = trusted
         if len(raw) < 4:
             return
         if self._t_rx0 is None:   # start the receiver clock so the pseudoranges come out near 20 000 km

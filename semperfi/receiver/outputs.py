@@ -149,7 +149,8 @@ def horizontal_velocity(fix: Fix) -> tuple[float, float]:
 
 # NMEA 4.10 navigational status: S safe, C caution, U unsafe, V not valid. The defence's state maps onto it so a
 # plain NMEA consumer can see that the receiver distrusts its own solution.
-_NAV_STATUS = {"nominal": "S", "recovered": "S", "recovering": "C", "spoofing_detected": "U"}
+_NAV_STATUS = {"nominal": "S", "recovered": "S", "rectified": "C", "recovering": "C", "unverified": "U",
+               "spoofing_detected": "U"}
 
 
 def nmea_sentences(fix: Fix, leap_s: int = DEFAULT_LEAP_S) -> tuple[bytes, bytes]:

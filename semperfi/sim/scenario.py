@@ -48,7 +48,8 @@ DEFAULTS: dict = {
         "max_offset_m": 5000.0,
         "power_ramp_s": 10.0,     # takeover: seconds to ramp from ramp_start_db to the full advantage
         "ramp_start_db": -10.0,
-        "time_offset_s": 5e-6,    # the spoofer's clock error, common to every spoofed PRN: an unsynchronised spoofer
+        "time_offset_s": 0.0,     # the spoofer's clock error, common to every spoofed PRN: 0 = synchronized to GPS
+                                  # time, as a competent attacker is (5e-6: an unsynchronised spoofer)
         "delay_s": 2e-6,          # meaconing: the replay delay
         "nav_data": "same",       # same | altered (spoofed PRNs broadcast a shifted satellite clock)
         "altered_clock_s": 1e-6,
