@@ -35,6 +35,10 @@ class DetectorConfig:
     # cancellation that verification undoes, a miss costs a spoofed range in a fix labelled recovered).
     sensitive_separation_chips: float = 0.2
     sensitive_two_path_pfa: float = 1e-3
+    # A fitted second path weaker than this is not a signal of its own: at high C/N0 the one-path model's own
+    # mismatch (the delay grid's step, the front end's filtering) is significant against the noise, and a second
+    # path absorbs it. A spoofer that matters is at most ~10 dB weaker than the legitimate signal.
+    two_path_min_ratio_db: float = -13.0
 
     @property
     def separation_chips(self) -> float:
@@ -116,7 +120,7 @@ def hidden_pair(samples: np.ndarray, fs_hz: float, if_hz: float, main: Peak, cfg
     fit = two_path_test(samples, fs_hz, main.prn, main.code_phase_chips, main.doppler_hz, if_hz, n_blocks=n_blocks,
                         pfa=cfg.sensitive_two_path_pfa if sensitive else cfg.two_path_pfa)
     separation = cfg.sensitive_separation_chips if sensitive else cfg.separation_chips
-    if not fit.significant or fit.separation_chips <= separation:
+    if not fit.significant or fit.separation_chips <= separation or fit.power_ratio_db < cfg.two_path_min_ratio_db:
         return None
     # the two peaks' metrics, apportioned from the main peak's by the fitted power ratio
     ratio = 10 ** (fit.power_ratio_db / 10)

@@ -15,6 +15,7 @@ from .policy import choose, parse_policy
 
 WINDOW_MS = 40     # samples kept for examinations: acquisition looks at the first 10 ms, the two-path test at the
                    # first 20 (all 40 once the attack is known: the highest sensitivity)
+EXAMINE_MAX_PEAKS = 16  # a strong spoofer's Doppler and code sidelobes are local maxima too: room for its twin
 
 
 class SpoofGuard:
@@ -82,11 +83,13 @@ class SpoofGuard:
         self._cleaned += cleaned.size
         return cleaned
 
-    def _acquire(self, window: np.ndarray, prns, center_hz: float, span_hz: float):
-        """Every examination's search: the window's first 10 ms, 2 ms coherent x 5, 333 Hz Doppler bins."""
+    def _acquire(self, window: np.ndarray, prns, center_hz: float, span_hz: float, noncoherent: int = 5):
+        """Every examination's search: the window's first 2 ms x noncoherent (10 ms; 20 ms once the attack is known,
+        so that a twin 10 dB under a strong spoofer stands steadily above the examination's floor), 333 Hz bins."""
         a = self.cfg["acquisition"]
-        return acquire(window[:self.window // 4], self.fs_hz, prns, DopplerGrid(center_hz, span_hz, 333.0),
-                       self.if_hz, 2, 5, a["pfa"], a["max_peaks"])
+        n = int(round(self.fs_hz * 1e-3)) * 2 * noncoherent
+        return acquire(window[:n], self.fs_hz, prns, DopplerGrid(center_hz, span_hz, 333.0),
+                       self.if_hz, 2, noncoherent, a["pfa"], max(EXAMINE_MAX_PEAKS, a["max_peaks"]))
 
     def _examine(self) -> None:
         t_s = (self._seen - self.window) / self.fs_hz
@@ -94,7 +97,8 @@ class SpoofGuard:
         prns = list(range(1, 33)) if full else sorted(self._present | self.extra_prns)
         if full:
             self._next_full = self._seen + int(self.d["full_search_every_s"] * self.fs_hz)
-        cafs = self._acquire(self._raw, prns, 0.0, self.cfg["acquisition"]["doppler_max_hz"])
+        cafs = self._acquire(self._raw, prns, 0.0, self.cfg["acquisition"]["doppler_max_hz"],
+                             10 if self.detector.sensitive else 5)
         self._present |= {p for p, c in cafs.items() if c.best is not None}
         self._last_cafs.update(cafs)
         looked = self._raw if self.detector.sensitive else self._raw[:self.window // 2]
@@ -201,4 +205,6 @@ class SpoofGuard:
         """At the end of the stream: what the canceller achieved, and what was given up."""
         t_s = self._seen / self.fs_hz
         self._emit("defense_summary", t_s, alarms=sorted(self.alarmed_prns), cancelled=sorted(self.cancel_started),
-                   verified=sorted(self.verified), gave_up=self.gave_up, attenuation_db=self.canceller.report())
+                   verified=sorted(self.verified), gave_up=self.gave_up, attenuation_db=self.canceller.report(),
+                   resolved=sorted(p for p in self._present | self.extra_prns if self.resolved(p)),
+                   suspect_close=sorted(self.detector.close))
