@@ -11,8 +11,8 @@ from semperfi.cli import _receiver_config
 from semperfi.defense.canceller import (Canceller, caf_amplitude, refine_peak, replicas_reference,
                                         subtract_replicas)
 from semperfi.defense.defended import DefendedReceiver
-from semperfi.defense.detector import SpoofingDetector
-from semperfi.defense.twopath import delay_profile, delay_profile_reference
+from semperfi.defense.detector import SpoofingDetector, chips_apart
+from semperfi.defense.twopath import delay_profile, delay_profile_reference, two_path_test
 from semperfi.gps.geometry import enu_rotation, geodetic_to_ecef
 from semperfi.iq import open_iq
 from semperfi.receiver.acquisition import DopplerGrid, acquire
@@ -100,8 +100,8 @@ def test_the_legitimate_probe_correlates_with_the_code_moved_by_its_offset():
 
 
 def test_sensitive_examination_finds_a_second_signal_closer_than_the_alarm_separation(tmp_path):
-    """Once the attack is known, a spoofer 0.35 chip from its twin (too close for the 500 ns alarm) makes the PRN
-    suspect, and a clean PRN is counted as examined single-signal."""
+    """Once the attack is known, a spoofer 0.35 chip from its twin (too close for the 500 ns alarm) raises the alarm
+    on its PRN, and a clean PRN is counted as examined single-signal."""
     from semperfi.defense.detector import DetectorConfig
     rows = simulate(tmp_path / "s.bin", "constellation.max_satellites=6", "attacker.enabled=true",
                     "attacker.prns=[8]", "attacker.offset_east_m=0.0", "attacker.time_offset_s=3.42e-7",
@@ -111,11 +111,14 @@ def test_sensitive_examination_finds_a_second_signal_closer_than_the_alarm_separ
     assert spoofed == [8], "the attacker transmits PRN 8 only"
     reader, det = open_iq(tmp_path / "s.bin"), SpoofingDetector(FS, cfg=DetectorConfig())
     det.first_alarm_s = 0.0                      # the attack is known (another PRN alarmed)
+    alarms = []
     for t in (0.5, 1.0, 1.5, 2.0):
         x = reader.read(int(t * FS), int(0.04 * FS))
         cafs = acquire(x[: int(0.01 * FS)], FS, prns, DopplerGrid(max_hz=6000, step_hz=333), coherent_ms=2,
                        noncoherent=5)
-        assert not det.examine(cafs, t, x), "0.35 chip is below the alarm's separation: suspect, not alarmed"
+        alarms += det.examine(cafs, t, x)
+    assert [a.prn for a in alarms] == spoofed, [a.pair.as_event() for a in alarms]
+    assert 0.25 < alarms[0].pair.separation_chips < 0.45 and alarms[0].pair.source == "two_path"
     assert set(det.close) == set(spoofed), (det.close.keys(), spoofed)
     clean = [p for p in prns if p not in spoofed]
     assert all(det.single_looks.get(p, 0) >= 2 for p in clean), det.single_looks
@@ -140,8 +143,10 @@ def test_seamless_takeover_alarms_when_the_peaks_part_by_500_ns(tmp_path):
 
 @pytest.mark.parametrize("advantage_db", [0.0, 3.0, 6.0, 10.0])
 def test_amplitude_estimate_from_the_caf_peak(advantage_db):
+    """The paper's eq. 10 on peaks that stand apart (an unsynchronized spoofer, 5 us off): a legitimate twin within
+    a chip shares the peak, and the canceller estimates such pairs jointly instead (the synchronized grid below)."""
     cfg = load_scenario(None, [f"signal.fs_hz={FS}", "time.duration_s=0.06", "constellation.max_satellites=8",
-                               'signal.format="gr_complex"', "attacker.enabled=true",
+                               'signal.format="gr_complex"', "attacker.enabled=true", "attacker.time_offset_s=5e-6",
                                f"attacker.power_advantage_db={advantage_db}"])
     truth = []
     sim = Simulator(cfg)
@@ -156,16 +161,24 @@ def test_amplitude_estimate_from_the_caf_peak(advantage_db):
     assert rms < 5.0, f"amplitude RMS error {rms:.2f} % at +{advantage_db:g} dB"
 
 
-def test_one_spoofed_prn_at_6_db_is_attenuated_by_20_db(tmp_path):
+@pytest.mark.parametrize("time_offset_s", [0.0, 5e-6], ids=["synchronized", "unsynchronized"])
+def test_one_spoofed_prn_at_6_db_is_attenuated_by_20_db(tmp_path, time_offset_s):
     """The same scenario rendered with and without the attacker (same seed: same noise and satellites); what the
-    canceller leaves of the spoofer is the cleaned file minus the attack-free one."""
-    common = ["constellation.max_satellites=6", "attacker.prns=[8]", "attacker.power_advantage_db=6.0"]
-    simulate(tmp_path / "a.bin", "attacker.enabled=true", *common, duration=4.0, fmt="gr_complex")
+    canceller leaves of the spoofer is the cleaned file minus the attack-free one. Synchronized, the legitimate
+    twin lies within a chip (both are estimated jointly); unsynchronized, ~5 chips away."""
+    common = ["constellation.max_satellites=6", "attacker.prns=[8]", "attacker.power_advantage_db=6.0",
+              f"attacker.time_offset_s={time_offset_s}"]
+    rows = simulate(tmp_path / "a.bin", "attacker.enabled=true", *common, duration=4.0, fmt="gr_complex")
     simulate(tmp_path / "z.bin", *common, duration=4.0, fmt="gr_complex")
     x, z = open_iq(tmp_path / "a.bin").read(0, int(4 * FS)), open_iq(tmp_path / "z.bin").read(0, int(4 * FS))
+    at0 = {r["source"]: r["code_phase_chips"] for r in rows if r["prn"] == 8 and r["t_rx_s"] == rows[0]["t_rx_s"]}
     caf = acquire(x[: int(0.01 * FS)], FS, [8], DopplerGrid(max_hz=6000, step_hz=333), coherent_ms=2, noncoherent=5)[8]
+    fit = two_path_test(x[: int(0.04 * FS)], FS, 8, caf.best.code_phase_chips, caf.best.doppler_hz, n_blocks=40)
+    legit = fit.second_code_phase_chips if fit.significant else None   # the spoofer is the stronger, here
+    if time_offset_s == 0.0:
+        assert legit is not None and chips_apart(legit, at0["legit"]) < 0.1, (fit, at0)
     canceller = Canceller(FS)
-    canceller.cancel(refine_peak(x[: int(0.01 * FS)], FS, 0.0, caf.best), 0)
+    canceller.cancel(refine_peak(x[: int(0.01 * FS)], FS, 0.0, caf.best), 0, legit_code_phase_chips=legit)
     y = np.concatenate([canceller.push(x[i:i + 200000]) for i in range(0, x.size, 200000)] + [canceller.flush()])
     assert y.size == x.size
     steady = slice(int(2.0 * FS), int(3.9 * FS))

@@ -164,7 +164,7 @@ class SpoofingDetector:
         self.alarmed: set[int] = set()
         self.first_alarm_s: float | None = None
         self.single_looks: dict[int, int] = {}   # PRN -> consecutive sensitive looks that found one signal only
-        self.close: dict[int, PeakPair] = {}     # PRN -> a second signal under its peak, too close to cancel yet
+        self.close: dict[int, PeakPair] = {}     # PRN -> a second signal under its peak, closer than the separation
 
     def _follow(self, prn: int, peaks: list[Peak], t_s: float) -> list[_Track]:
         """Match peaks to the PRN's known tracks (code phase propagated with its Doppler), keep the new ones."""
@@ -216,11 +216,11 @@ class SpoofingDetector:
                 continue
             self.single_looks[prn] = 0
             if pairs[0].separation_chips <= self.cfg.separation_chips:
-                # a second signal closer than the alarm's separation, seen once the attack is known: the PRN is
-                # suspect (never counted clean) but not cancelled, since its peaks cannot be told apart yet
+                # a second signal closer than the alarm's separation, seen once the attack is known: the attacker's
+                # until resolved (the canceller estimates both signals jointly)
                 self.close[prn] = pairs[0]
-                continue
-            self.close.pop(prn, None)
+            else:
+                self.close.pop(prn, None)
             self.streak[prn] = self.streak.get(prn, 0) + 1
             if self.streak[prn] >= self.cfg.confirmations and prn not in self.alarmed:
                 self.alarmed.add(prn)
