@@ -200,6 +200,8 @@ class SpoofingDetector:
         alarms = []
         sensitive = self.sensitive
         for prn, caf in cafs.items():
+            if prn in self.alarmed:      # under cancellation: the canceller's verification follows it
+                continue
             if not _examinable(caf.best, caf, cafs, self.cfg, self.fs_hz):
                 self.single_looks[prn] = 0
                 continue
