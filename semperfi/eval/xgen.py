@@ -1,0 +1,177 @@
+"""Spoofing recordings from a generator nobody here wrote: GPS-SDR-SIM renders a legitimate scene and a spoofer
+scene on the same GPS time (a synchronized attacker), and our own mixer adds them with calibrated noise.
+
+GPS-SDR-SIM (github.com/osqzss/gps-sdr-sim) is called when `gps-sdr-sim` is on PATH; nothing of it is shipped here.
+With `-p` it holds every satellite at one fixed gain: each renders I and Q from a +/-250 cosine/sine table times
+128 / 2^7, a complex amplitude of 250 per satellite, so C/N0 = 250^2 / N0 and the noise follows from the C/N0 asked
+for. The mix is int16 IQ (GNSS-SDR's ishort) with a SigMF sidecar, written in bounded memory.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import shutil
+import subprocess
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pymap3d
+
+from ..iq.sigmf import build_sigmf_meta, sidecar_path, write_sigmf_meta
+
+GPS_SDR_SIM = "gps-sdr-sim"
+AMPLITUDE = 250.0           # complex amplitude of one satellite in gps-sdr-sim's 16-bit output with -p
+OUTPUT_SCALE = 0.5          # headroom in int16 for a +20 dB spoofer on a dozen satellites
+MIX_BLOCK_S = 1.0
+
+
+class XgenError(Exception):
+    """A problem worth one line to the user."""
+
+
+@dataclass(frozen=True)
+class Place:
+    name: str
+    lat_deg: float
+    lon_deg: float
+    height_m: float = 10.0
+
+
+PLACES = {p.name: p for p in (Place("boston", 42.3398, -71.0892), Place("sydney", -33.8688, 151.2093),
+                              Place("zurich", 47.3769, 8.5417), Place("singapore", 1.3521, 103.8198))}
+OWN_DATE = "2022/01/01,00:00:00"     # the shared ephemeris' own day (brdc0010.22n)
+
+
+@dataclass(frozen=True)
+class Case:
+    place: Place
+    offset_m: float                  # the claimed position, this far from the truth
+    advantage_db: float              # spoofer power over the legitimate signals
+    date: str = OWN_DATE             # gps-sdr-sim's start time; another day moves the ephemeris there (-T)
+    azimuth_deg: float = 90.0        # direction of the claimed position (east)
+    duration_s: float = 40.0
+    fs_hz: float = 2.6e6
+    cn0_dbhz: float = 45.0
+    spoof_start_s: float = 0.0
+    seed: int = 1
+    attacker: bool = True            # False: the legitimate scene and noise only
+
+    @property
+    def own_date(self) -> bool:
+        return self.date == OWN_DATE
+
+    @property
+    def tag(self) -> str:
+        day = self.date.split(",")[0].replace("/", "")
+        attack = f"{self.offset_m:g}m-{self.advantage_db:+g}dB" if self.attacker else "clean"
+        return f"{self.place.name}-{day}-{attack}-{self.fs_hz / 1e6:g}M-{self.duration_s:g}s-s{self.seed}"
+
+
+def gps_sdr_sim_path() -> str | None:
+    return shutil.which(GPS_SDR_SIM)
+
+
+def claimed_place(case: Case) -> Place:
+    """The spoofer's claimed position: offset_m along azimuth_deg on the local horizon."""
+    az = math.radians(case.azimuth_deg)
+    lat, lon, h = pymap3d.enu2geodetic(case.offset_m * math.sin(az), case.offset_m * math.cos(az), 0.0,
+                                       case.place.lat_deg, case.place.lon_deg, case.place.height_m)
+    return Place(f"{case.place.name}-claimed", float(lat), float(lon), float(h))
+
+
+def render(nav_path: str | Path, out: Path, place: Place, case: Case) -> Path:
+    """One gps-sdr-sim scene (16-bit IQ, fixed gain), cached: a file of the right size is reused."""
+    exe = gps_sdr_sim_path()
+    if exe is None:
+        raise XgenError(f"{GPS_SDR_SIM} not found on PATH (build it from github.com/osqzss/gps-sdr-sim: one gcc line)")
+    n_bytes = 4 * int(round(case.fs_hz * 0.1)) * int(round(case.duration_s * 10))
+    if out.is_file() and out.stat().st_size == n_bytes:
+        return out
+    args = [exe, "-e", str(nav_path), "-l", f"{place.lat_deg:.9f},{place.lon_deg:.9f},{place.height_m:.3f}",
+            "-s", f"{case.fs_hz:.0f}", "-d", f"{case.duration_s:g}", "-b", "16", "-p", "-o", str(out)]
+    args += ["-t", case.date] if case.own_date else ["-T", case.date]
+    r = subprocess.run(args, capture_output=True, text=True, timeout=3600)
+    if r.returncode != 0 or not out.is_file():
+        raise XgenError(f"gps-sdr-sim failed ({r.returncode}): {(r.stderr or r.stdout).strip().splitlines()[-1:]}")
+    return out
+
+
+def noise_sigma(fs_hz: float, cn0_dbhz: float) -> float:
+    """Per-component noise so that one gps-sdr-sim satellite (complex amplitude AMPLITUDE) sits at cn0_dbhz."""
+    return math.sqrt(AMPLITUDE ** 2 * fs_hz / (2.0 * 10 ** (cn0_dbhz / 10.0)))
+
+
+def mix(legit: Path, spoof: Path | None, out: Path, case: Case) -> Path:
+    """legit + spoofer x 10^(P/20) (from spoof_start_s) + white Gaussian noise at the case's C/N0, int16 IQ."""
+    sigma = noise_sigma(case.fs_hz, case.cn0_dbhz)
+    gain = 10 ** (case.advantage_db / 20.0)
+    rng = np.random.default_rng(case.seed)
+    a = np.memmap(legit, dtype=np.int16, mode="r")
+    b = np.memmap(spoof, dtype=np.int16, mode="r") if spoof is not None else None
+    if b is not None and b.size != a.size:
+        raise XgenError(f"{legit} and {spoof} differ in length")
+    block = 2 * int(round(case.fs_hz * MIX_BLOCK_S))
+    start = 2 * int(round(case.spoof_start_s * case.fs_hz))
+    with open(out, "wb") as f:
+        for i in range(0, a.size, block):
+            x = a[i:i + block].astype(np.float64)
+            if b is not None and i + x.size > start:
+                s = b[i:i + block].astype(np.float64)
+                s[:max(0, start - i)] = 0.0
+                x += gain * s
+            x += rng.standard_normal(x.size) * sigma
+            f.write(np.clip(np.round(x * OUTPUT_SCALE), -32767, 32767).astype("<i2").tobytes())
+    meta = build_sigmf_meta(datatype="ci16_le", sample_rate_hz=case.fs_hz, dataset=out.name,
+                            description=f"gps-sdr-sim legitimate + spoofer scenes mixed by semperfi.eval.xgen: {case}")
+    write_sigmf_meta(sidecar_path(out), meta)
+    return out
+
+
+def horizontal_error_m(x_m: float, y_m: float, z_m: float, place: Place) -> float:
+    e, n, _ = pymap3d.ecef2enu(x_m, y_m, z_m, place.lat_deg, place.lon_deg, place.height_m)
+    return float(math.hypot(e, n))
+
+
+def score(fixes_csv: Path, place: Place, last_s: float = 10.0, bad_m: float = 10.0) -> dict:
+    """What a receiver made of a case: horizontal error over the last seconds, first fix, wrong fixes called good."""
+    rows = list(csv.DictReader(open(fixes_csv, newline="")))
+    t = np.array([float(r["t_rx_s"]) for r in rows])
+    err = np.array([horizontal_error_m(float(r["x_m"]), float(r["y_m"]), float(r["z_m"]), place) for r in rows])
+    states = [r.get("state", "nominal") for r in rows]
+    if not rows:
+        return {"fixes": 0}
+    last = t >= t[-1] - last_s
+    good = np.array([s in ("nominal", "recovered") for s in states])
+    return {"fixes": len(rows), "first_fix_s": round(float(t[0]), 1),
+            "last_mean_m": round(float(np.mean(err[last])), 2), "max_m": round(float(np.max(err)), 1),
+            "last_state": states[-1], "recovered": int(sum(s == "recovered" for s in states)),
+            "called_good_but_wrong": int(np.sum(good & (err > bad_m)))}
+
+
+def prepare(case: Case, nav_path: str | Path, work: Path) -> Path:
+    """The mixed recording of a case (scenes cached in work/scenes)."""
+    scenes = work / "scenes"
+    scenes.mkdir(parents=True, exist_ok=True)
+    stem = f"{case.date.replace('/', '').replace(',', 'T').replace(':', '')}-{case.fs_hz / 1e6:g}M-{case.duration_s:g}s"
+    legit = render(nav_path, scenes / f"{case.place.name}-{stem}.bin", case.place, case)
+    spoof = None
+    if case.attacker:
+        claimed = claimed_place(case)
+        spoof = render(nav_path, scenes / f"{case.place.name}-{case.offset_m:g}m-{case.azimuth_deg:g}deg-{stem}.bin",
+                       claimed, case)
+    return mix(legit, spoof, work / f"{case.tag}.bin", case)
+
+
+def run_case(case: Case, nav_path: str | Path, work: Path, defense: str = "full", assisted: bool = True) -> dict:
+    """Prepare a case, run `semperfi run` on it in-process, and score it."""
+    from ..cli import _receiver_config
+    from ..defense.defended import DefendedReceiver
+    from ..receiver.run import run_file
+    data = prepare(case, nav_path, work)
+    out = work / f"{case.tag}-{defense}{'' if assisted else '-unassisted'}"
+    run_file(data, None, None, None, _receiver_config(None, [f'defense.mode="{defense}"']), out,
+             str(nav_path) if assisted and case.own_date else None, receiver_factory=DefendedReceiver)
+    return {"case": case.tag, "defense": defense, "assisted": assisted and case.own_date,
+            **score(out / "fixes.csv", case.place)}
