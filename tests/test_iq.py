@@ -43,7 +43,7 @@ def test_unknown_format_name_lists_the_valid_ones():
     message = _one_line_value_error(excinfo)
     for name in ("ibyte", "ishort", "gr_complex", "cfloat"):
         assert name in message, f"{name!r} missing from {message!r}"
-    assert set(FORMAT_NAMES) == {"ibyte", "ishort", "gr_complex", "cfloat"}
+    assert set(FORMAT_NAMES) == {"ibyte", "ishort", "gr_complex", "cfloat", "byte", "short", "float"}
 
 
 # --- writing and the byte layout ---------------------------------------------------------------------------------
