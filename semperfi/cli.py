@@ -94,10 +94,10 @@ def acquire(file, fs_hz, fmt, iq_swap, if_hz, prn_text, start_s, coherent_ms, no
         samples = reader.read(int(round(start_s * reader.fs_hz)), n)
         step = doppler_step_hz or 2.0 / 3.0 / (coherent_ms * 1e-3)
         cafs = run_acquisition(samples, reader.fs_hz, prns, DopplerGrid(0.0, doppler_max_hz, step), reader.if_hz,
-                               coherent_ms, noncoherent, pfa)
+                               coherent_ms, noncoherent, pfa, tail_threshold=True)
     except ValueError as exc:
         _fail(str(exc))
-    click.echo(f"{'PRN':>3}  {'code phase':>11}  {'Doppler':>9}  {'C/N0':>6}  {'ratio':>6}  peaks")
+    click.echo(f"{'PRN':>3}  {'code phase':>11}  {'Doppler':>9}  {'C/N0':>6}  {'ratio':>6}  {'2nd':>5}  peaks")
     found = 0
     for prn, caf in cafs.items():
         if caf.best is None:
@@ -105,7 +105,7 @@ def acquire(file, fs_hz, fmt, iq_swap, if_hz, prn_text, start_s, coherent_ms, no
         found += 1
         b = caf.best
         click.echo(f"{prn:>3}  {b.code_phase_chips:>7.3f} ch  {b.doppler_hz:>6.0f} Hz  {b.cn0_dbhz:>6.1f}  "
-                   f"{caf.peak_ratio:>6.1f}  {len(caf.peaks)}")
+                   f"{caf.peak_ratio:>6.1f}  {caf.second_peak_ratio:>5.2f}  {len(caf.peaks)}")
     if plot_path:
         from .receiver.plots import plot_cafs
         plot_cafs([c for c in cafs.values() if c.best], plot_path)

@@ -12,7 +12,7 @@ import scipy.fft
 from scipy import stats
 
 from ..gps.codes import ca_code
-from ..gps.constants import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, CA_CODE_PERIOD_S
+from ..gps.constants import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, CA_CODE_PERIOD_S, L1_HZ
 
 
 @dataclass(frozen=True)
@@ -145,11 +145,16 @@ def _threshold(pfa: float, n_cells: int, n_noncoherent: int) -> float:
     return float(stats.chi2.isf(pfa_cell, 2 * n_noncoherent) / (2 * n_noncoherent))
 
 
-def _empirical_threshold(power: np.ndarray, pfa_cell: float) -> float:
+def _empirical_threshold(power: np.ndarray, pfa_cell: float, dopplers_hz: np.ndarray, coherent_s: float) -> float:
     """The level a CAF's own noise exceeds with probability pfa_cell, from its tail: the 99 % and 99.9 % quantiles
     extrapolated as an exponential tail. Real captures have heavier tails than the chi-square theory (other
     satellites' cross-correlation, quantisation, interference left after excision); a few signal cells cannot
-    move these quantiles."""
+    move these quantiles. Rows within 1.5 / coherent time of the strongest cell are left out: they hold that
+    signal's own code sidelobes, which would hide a weaker signal of the same PRN (the spoofing case)."""
+    top_row = np.unravel_index(int(np.argmax(power)), power.shape)[0]
+    far = np.abs(dopplers_hz - dopplers_hz[top_row]) > 1.5 / coherent_s
+    if far.sum() >= 3:
+        power = power[far]
     q1, q2 = np.quantile(power, [0.99, 0.999])
     return float(q2 + (q2 - q1) * np.log(1e-3 / pfa_cell) / np.log(10.0))
 
@@ -176,12 +181,15 @@ def find_peaks(power: np.ndarray, threshold: float, max_peaks: int) -> list[tupl
 
 def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: DopplerGrid = DopplerGrid(),
             if_hz: float = 0.0, coherent_ms: int = 1, noncoherent: int = 1, pfa: float = 1e-3,
-            max_peaks: int = 8, excise: bool = True) -> dict[int, Caf]:
+            max_peaks: int = 8, excise: bool = True,
+            tail_threshold: bool = False) -> dict[int, Caf]:
     """Search each PRN over the Doppler grid and every code phase.
 
     Uses coherent_ms * noncoherent ms of samples from the start, with DC and narrowband spurs excised first
     (`excise_narrowband`). The noise floor sigma^2 is taken per Doppler row from that row's median, robust to
-    the few cells that hold signal and to what is left of interference near one Doppler.
+    the few cells that hold signal and to what is left of interference near one Doppler. With `tail_threshold`
+    the threshold is also at least the CAF's own empirical tail at the false-alarm rate (`_empirical_threshold`):
+    what holds the rate on real captures, where strong satellites' cross-correlation fattens the tail.
     """
     if not 1 <= coherent_ms <= 20 or noncoherent < 1:
         raise ValueError("acquisition wants 1-20 ms coherent and at least one non-coherent sum")
@@ -212,7 +220,9 @@ def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: Dopple
         raw = np.mean(np.abs(coh) ** 2, axis=1)
         sigma2 = np.median(raw, axis=1, keepdims=True) / chi_median
         power = (raw / sigma2).astype(np.float32)
-        thr = max(thr_theory, _empirical_threshold(power, pfa_cell))
+        thr = thr_theory
+        if tail_threshold:
+            thr = max(thr, _empirical_threshold(power, pfa_cell, dopplers, coherent_ms * CA_CODE_PERIOD_S))
         peaks = []
         for row, col in find_peaks(power, thr, max_peaks):
             dc = _interp(np.sqrt(power[row, col - 1]), np.sqrt(power[row, col]), np.sqrt(power[row, (col + 1) % n_ms]))
@@ -220,8 +230,11 @@ def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: Dopple
             if 0 < row < dopplers.size - 1:
                 dd = _interp(power[row - 1, col], power[row, col], power[row + 1, col])
             snr = max(float(power[row, col]) - 1.0, 1e-3)
-            peaks.append(Peak(prn, float((col + dc) * CA_CHIP_RATE_HZ / fs_hz % CA_CODE_LENGTH_CHIPS),
-                              float(dopplers[row] + dd * grid.step_hz), float(power[row, col]),
+            doppler_hz = float(dopplers[row] + dd * grid.step_hz)
+            # The peak sits where the code is at mid-block; the code runs fast by doppler/1540 chip/s, so step
+            # back half a block to the first sample (0.17 chip at 2.6 kHz over 200 ms).
+            chips = (col + dc) * CA_CHIP_RATE_HZ / fs_hz - 0.5 * need / fs_hz * doppler_hz * CA_CHIP_RATE_HZ / L1_HZ
+            peaks.append(Peak(prn, float(chips % CA_CODE_LENGTH_CHIPS), doppler_hz, float(power[row, col]),
                               float(10 * np.log10(snr / (coherent_ms * CA_CODE_PERIOD_S)))))
         ratio2 = second_peak_ratio(power, *np.unravel_index(int(np.argmax(power)), power.shape), fs_hz)
         result[prn] = Caf(prn, dopplers, code_chips, power, thr, coherent_ms * CA_CODE_PERIOD_S, tuple(peaks),
