@@ -81,8 +81,8 @@ def _parse_prns(text: str) -> list[int]:
 @click.option("--doppler-step", "doppler_step_hz", type=float, default=0.0, help="Hz; default 2/3 of 1/coherent")
 @click.option("--pfa", type=float, default=1e-3, show_default=True, help="false-alarm probability per PRN search")
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False), help="write the CAFs of acquired PRNs as PNG")
-def acquire(file, fs_hz, fmt, iq_swap, if_hz, prn_text, start_s, coherent_ms, noncoherent, doppler_max_hz, doppler_step_hz,
-            pfa, plot_path) -> None:
+def acquire(file, fs_hz, fmt, iq_swap, if_hz, prn_text, start_s, coherent_ms, noncoherent, doppler_max_hz,
+            doppler_step_hz, pfa, plot_path) -> None:
     """Search FILE for every PRN: one line per PRN with code phase, Doppler, C/N0, peak ratio and peak count."""
     from .iq import open_iq
     from .receiver.acquisition import DopplerGrid, acquire as run_acquisition
@@ -135,7 +135,8 @@ def run(file, fs_hz, fmt, iq_swap, if_hz, nav_path, out_dir, config_path, defens
     sets = list(sets) + [f'defense.mode="{defense}"'] * bool(defense) + [f'defense.adversarial="{adversarial}"'] * bool(adversarial)
     try:
         cfg = _receiver_config(config_path, sets)
-        summary = run_file(file, _sample_format(fmt, iq_swap), fs_hz, if_hz, cfg, out_dir, nav_path, live=sys.stderr.isatty(),
+        summary = run_file(file, _sample_format(fmt, iq_swap), fs_hz, if_hz, cfg, out_dir, nav_path,
+                           live=sys.stderr.isatty(),
                            receiver_factory=DefendedReceiver)
     except (ValueError, OSError) as exc:
         _fail(str(exc))

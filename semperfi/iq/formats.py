@@ -163,14 +163,12 @@ def encode_samples(samples: np.ndarray, fmt: SampleFormat, scale: float = 1.0) -
     with np.errstate(over="ignore", invalid="ignore"):
         scaled = iq * scale if scale != 1.0 else iq.copy()
         if not fmt.is_integer:
-            if fmt.is_complex:
-                out = scaled.astype(fmt.item_dtype.byteorder.replace("=", "<") + "f" + str(fmt.item_dtype.itemsize // 2))
-                out = out.view(fmt.item_dtype)
-                bad = ~np.isfinite(out)
+            if fmt.is_complex:   # write I, Q as floats of half the complex item's size, same byte order
+                part_dtype = fmt.item_dtype.byteorder.replace("=", "<") + "f" + str(fmt.item_dtype.itemsize // 2)
+                out = scaled.astype(part_dtype).view(fmt.item_dtype)
             else:
                 out = scaled.astype(fmt.item_dtype)
-                bad = ~np.isfinite(out)
-            return out, int(bad.sum())
+            return out, int((~np.isfinite(out)).sum())
         info = np.iinfo(fmt.item_dtype)
         np.rint(scaled, out=scaled)
         if fmt.offset:

@@ -190,7 +190,8 @@ def open_iq(path: str | os.PathLike, fmt: SampleFormat | str | None = None, fs_h
     why = f"no SigMF sidecar {path.with_suffix(META_SUFFIX).name}" if meta is None else \
         f"SigMF sidecar {meta_path} does not say"
     if final_fmt is None:
-        raise ValueError(f"sample format of {path} unknown ({why}): pass --format ibyte|ishort|gr_complex|byte|short|<SigMF datatype>")
+        raise ValueError(f"sample format of {path} unknown ({why}): "
+                         "pass --format ibyte|ishort|gr_complex|byte|short|<SigMF datatype>")
     if final_fs is None:
         raise ValueError(f"sample rate of {path} unknown ({why}): pass --fs <Hz>")
     return IqReader(path, final_fmt, final_fs, chunk_samples, if_hz=final_if, sidecar=meta)
