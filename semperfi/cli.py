@@ -89,7 +89,10 @@ def acquire(file, fs_hz, fmt, iq_swap, if_hz, prn_text, start_s, coherent_ms, no
 
     prns = _parse_prns(prn_text)
     try:
-        reader = open_iq(file, _sample_format(fmt, iq_swap), fs_hz, if_hz)
+        if file == "-":   # a pipe: the format and rate must be given, the samples are read once, in order
+            reader = _StdinSource(_sample_format(fmt, iq_swap), fs_hz, if_hz)
+        else:
+            reader = open_iq(file, _sample_format(fmt, iq_swap), fs_hz, if_hz)
         n = int(round(reader.fs_hz * 1e-3)) * coherent_ms * noncoherent
         samples = reader.read(int(round(start_s * reader.fs_hz)), n)
         step = doppler_step_hz or 2.0 / 3.0 / (coherent_ms * 1e-3)
@@ -173,6 +176,23 @@ def clean(file, out_path, fs_hz, fmt, iq_swap, if_hz, adversarial, config_path, 
         click.echo(f"  PRN {prn:>2}: attenuation {', '.join(map(str, last)) or 'not yet measured'} dB (per SIC stage)")
     if s.gave_up:
         click.echo(f"  gave up on: {s.gave_up}", err=True)
+
+
+class _StdinSource:
+    """Standard input as a one-shot sample source for `acquire -`."""
+
+    def __init__(self, fmt, fs_hz, if_hz):
+        from .iq.formats import _finite_float, _positive_float, as_format
+        if fmt is None or fs_hz is None:
+            raise ValueError("reading samples from standard input needs --format and --fs")
+        self.fmt, self.fs_hz = as_format(fmt), _positive_float(fs_hz, "sample rate (--fs)")
+        self.if_hz = _finite_float(if_hz or 0.0, "intermediate frequency (--if)")
+        if not self.fmt.is_complex and not 0 < abs(self.if_hz) < self.fs_hz / 2:
+            raise ValueError(f"real-valued samples ({self.fmt.name}) need --if between 0 and fs/2")
+
+    def read(self, start_sample: int, n_samples: int):
+        from .iq.stream import read_stream
+        return read_stream(sys.stdin.buffer, self.fmt, n_samples, skip_samples=start_sample)
 
 
 def _sample_format(fmt, iq_swap: bool):
