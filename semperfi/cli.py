@@ -91,6 +91,8 @@ def acquire(file, fs_hz, fmt, iq_swap, if_hz, prn_text, start_s, coherent_ms, no
     try:
         if file == "-":   # a pipe: the format and rate must be given, the samples are read once, in order
             reader = _StdinSource(_sample_format(fmt, iq_swap), fs_hz, if_hz)
+        elif file.startswith("rtl_tcp://"):   # an RTL-SDR behind rtl_tcp, tuned to L1
+            reader = _rtl_tcp_source(file, fs_hz)
         else:
             reader = open_iq(file, _sample_format(fmt, iq_swap), fs_hz, if_hz)
         n = int(round(reader.fs_hz * 1e-3)) * coherent_ms * noncoherent
@@ -193,6 +195,14 @@ class _StdinSource:
     def read(self, start_sample: int, n_samples: int):
         from .iq.stream import read_stream
         return read_stream(sys.stdin.buffer, self.fmt, n_samples, skip_samples=start_sample)
+
+
+def _rtl_tcp_source(url: str, fs_hz):
+    from .iq.rtltcp import RtlTcpSource
+    host, _, port = url[len("rtl_tcp://"):].rpartition(":")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536 or fs_hz is None:
+        raise ValueError(f"expected rtl_tcp://HOST:PORT with --fs, got {url!r}")
+    return RtlTcpSource(host, int(port), fs_hz)
 
 
 def _sample_format(fmt, iq_swap: bool):

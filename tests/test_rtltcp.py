@@ -73,3 +73,27 @@ def test_stalled_stream_is_a_clear_error_not_a_short_block():
         src.read(0, 4000)
     src.close()
     thread.join(5)
+
+
+def test_acquire_over_rtl_tcp_end_to_end(tmp_path):
+    """A recording replayed by a local rtl_tcp server: `semperfi acquire rtl_tcp://...` finds its satellite."""
+    import subprocess
+    import sys
+    from semperfi.gps.codes import ca_code
+    fs = 2.048e6
+    n = int(fs * 0.012)
+    t = np.arange(n) / fs
+    chips = np.floor(300.0 + t * 1.023e6).astype(int) % 1023
+    rng = np.random.default_rng(9)
+    x = 0.4 * ca_code(11)[chips] * np.exp(2j * np.pi * -2100.0 * t) + rng.standard_normal(n) + 1j * rng.standard_normal(n)
+    iq = np.empty(2 * n, dtype=np.uint8)
+    iq[0::2] = np.clip(np.rint(127.5 + 25 * x.real), 0, 255)
+    iq[1::2] = np.clip(np.rint(127.5 + 25 * x.imag), 0, 255)
+    port, thread, _ = _server(iq.tobytes())
+    result = subprocess.run([sys.executable, "-m", "semperfi.cli", "acquire", f"rtl_tcp://127.0.0.1:{port}",
+                             "--fs", str(fs), "--prn", "9-13"], capture_output=True, text=True, timeout=120)
+    thread.join(5)
+    assert result.returncode == 0, result.stderr
+    rows = {int(ln.split()[0]): ln.split() for ln in result.stdout.splitlines()[1:]}
+    assert list(rows) == [11], f"expected PRN 11 only:\n{result.stdout}"
+    assert abs(float(rows[11][1]) - 300.0) < 0.1 and abs(float(rows[11][3]) + 2100.0) < 50, result.stdout
