@@ -99,7 +99,8 @@ def acquire(file, fs_hz, fmt, iq_swap, if_hz, prn_text, start_s, coherent_ms, no
         samples = reader.read(int(round(start_s * reader.fs_hz)), n)
         step = doppler_step_hz or 2.0 / 3.0 / (coherent_ms * 1e-3)
         cafs = run_acquisition(samples, reader.fs_hz, prns, DopplerGrid(0.0, doppler_max_hz, step), reader.if_hz,
-                               coherent_ms, noncoherent, pfa, tail_threshold=True)
+                               coherent_ms, noncoherent, pfa, excise=True,
+                               tail_threshold=True)
     except ValueError as exc:
         _fail(str(exc))
     click.echo(f"{'PRN':>3}  {'code phase':>11}  {'Doppler':>9}  {'C/N0':>6}  {'ratio':>6}  {'2nd':>5}  peaks")

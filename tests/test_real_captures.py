@@ -46,7 +46,7 @@ def _capture(name: str) -> Path:
 
 def _acquired(samples, fs_hz, if_hz=0.0, coherent_ms=5, noncoherent=10, step_hz=100.0):
     cafs = acquire(samples, fs_hz, range(1, 33), DopplerGrid(0.0, 6000.0, step_hz), if_hz, coherent_ms, noncoherent,
-                   tail_threshold=True)
+                   excise=True, tail_threshold=True)
     return {prn: caf for prn, caf in cafs.items() if caf.best is not None}
 
 

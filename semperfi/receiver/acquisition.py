@@ -181,13 +181,13 @@ def find_peaks(power: np.ndarray, threshold: float, max_peaks: int) -> list[tupl
 
 def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: DopplerGrid = DopplerGrid(),
             if_hz: float = 0.0, coherent_ms: int = 1, noncoherent: int = 1, pfa: float = 1e-3,
-            max_peaks: int = 8, excise: bool = True,
+            max_peaks: int = 8, excise: bool = False,
             tail_threshold: bool = False) -> dict[int, Caf]:
     """Search each PRN over the Doppler grid and every code phase.
 
-    Uses coherent_ms * noncoherent ms of samples from the start, with DC and narrowband spurs excised first
-    (`excise_narrowband`). The noise floor sigma^2 is taken per Doppler row from that row's median, robust to
-    the few cells that hold signal and to what is left of interference near one Doppler. With `tail_threshold`
+    Uses coherent_ms * noncoherent ms of samples from the start; with `excise`, DC and narrowband spurs are
+    excised first (`excise_narrowband`). The noise floor sigma^2 is the CAF's median (with `tail_threshold`, per
+    Doppler row, robust to what is left of interference near one Doppler). With `tail_threshold`
     the threshold is also at least the CAF's own empirical tail at the false-alarm rate (`_empirical_threshold`):
     what holds the rate on real captures, where strong satellites' cross-correlation fattens the tail.
     """
@@ -218,7 +218,7 @@ def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: Dopple
         r = scipy.fft.ifft(np.conj(spectra) * replica, axis=2)
         coh = r.reshape(dopplers.size, noncoherent, coherent_ms, n_ms).sum(axis=2)
         raw = np.mean(np.abs(coh) ** 2, axis=1)
-        sigma2 = np.median(raw, axis=1, keepdims=True) / chi_median
+        sigma2 = (np.median(raw, axis=1, keepdims=True) if tail_threshold else np.median(raw)) / chi_median
         power = (raw / sigma2).astype(np.float32)
         thr = thr_theory
         if tail_threshold:
