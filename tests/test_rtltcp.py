@@ -26,15 +26,21 @@ def _server(payload: bytes, header: bytes = b"RTL0" + struct.pack(">II", 5, 29),
         with conn:
             conn.sendall(header)
             conn.settimeout(1)
+            got = b""
             try:
-                commands.append(conn.recv(15))
+                while len(got) < 15:   # the client's three 5-byte commands
+                    block = conn.recv(15 - len(got))
+                    if not block:
+                        break
+                    got += block
             except OSError:
                 pass
+            commands.append(got)
             body = payload if stall_after is None else payload[:stall_after]
             try:
                 conn.sendall(body)
-                if stall_after is not None:
-                    threading.Event().wait(2.0)   # silent, then gone
+                conn.settimeout(2.0)
+                conn.recv(1)   # silent until the client hangs up (or 2 s pass): a stall, then gone
             except OSError:
                 pass
         srv.close()
