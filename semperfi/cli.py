@@ -69,7 +69,9 @@ def _parse_prns(text: str) -> list[int]:
 @main.command()
 @click.argument("file", type=click.Path(dir_okay=False))
 @click.option("--fs", "fs_hz", type=float, help="sample rate, Hz (else from the SigMF sidecar)")
-@click.option("--format", "fmt", help="ibyte | ishort | gr_complex (else from the SigMF sidecar)")
+@click.option("--format", "fmt", help="ibyte | ishort | gr_complex | byte | short (real, with --if) | a SigMF "
+              "datatype (else from the SigMF sidecar)")
+@click.option("--iq-swap", is_flag=True, help="the front end stores Q before I (spectral inversion)")
 @click.option("--if", "if_hz", type=float, help="intermediate frequency, Hz")
 @click.option("--prn", "prn_text", default="1-32", show_default=True, help="PRNs to search")
 @click.option("--start", "start_s", type=float, default=0.0, show_default=True, help="seconds into the file")
@@ -79,23 +81,29 @@ def _parse_prns(text: str) -> list[int]:
 @click.option("--doppler-step", "doppler_step_hz", type=float, default=0.0, help="Hz; default 2/3 of 1/coherent")
 @click.option("--pfa", type=float, default=1e-3, show_default=True, help="false-alarm probability per PRN search")
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False), help="write the CAFs of acquired PRNs as PNG")
-def acquire(file, fs_hz, fmt, if_hz, prn_text, start_s, coherent_ms, noncoherent, doppler_max_hz, doppler_step_hz,
-            pfa, plot_path) -> None:
+def acquire(file, fs_hz, fmt, iq_swap, if_hz, prn_text, start_s, coherent_ms, noncoherent, doppler_max_hz,
+            doppler_step_hz, pfa, plot_path) -> None:
     """Search FILE for every PRN: one line per PRN with code phase, Doppler, C/N0, peak ratio and peak count."""
     from .iq import open_iq
     from .receiver.acquisition import DopplerGrid, acquire as run_acquisition
 
     prns = _parse_prns(prn_text)
     try:
-        reader = open_iq(file, fmt, fs_hz, if_hz)
+        if file == "-":   # a pipe: the format and rate must be given, the samples are read once, in order
+            reader = _StdinSource(_sample_format(fmt, iq_swap), fs_hz, if_hz)
+        elif file.startswith("rtl_tcp://"):   # an RTL-SDR behind rtl_tcp, tuned to L1
+            reader = _rtl_tcp_source(file, fs_hz)
+        else:
+            reader = open_iq(file, _sample_format(fmt, iq_swap), fs_hz, if_hz)
         n = int(round(reader.fs_hz * 1e-3)) * coherent_ms * noncoherent
         samples = reader.read(int(round(start_s * reader.fs_hz)), n)
         step = doppler_step_hz or 2.0 / 3.0 / (coherent_ms * 1e-3)
         cafs = run_acquisition(samples, reader.fs_hz, prns, DopplerGrid(0.0, doppler_max_hz, step), reader.if_hz,
-                               coherent_ms, noncoherent, pfa)
+                               coherent_ms, noncoherent, pfa, excise=True,
+                               tail_threshold=True)
     except ValueError as exc:
         _fail(str(exc))
-    click.echo(f"{'PRN':>3}  {'code phase':>11}  {'Doppler':>9}  {'C/N0':>6}  {'ratio':>6}  peaks")
+    click.echo(f"{'PRN':>3}  {'code phase':>11}  {'Doppler':>9}  {'C/N0':>6}  {'ratio':>6}  {'2nd':>5}  peaks")
     found = 0
     for prn, caf in cafs.items():
         if caf.best is None:
@@ -103,7 +111,7 @@ def acquire(file, fs_hz, fmt, if_hz, prn_text, start_s, coherent_ms, noncoherent
         found += 1
         b = caf.best
         click.echo(f"{prn:>3}  {b.code_phase_chips:>7.3f} ch  {b.doppler_hz:>6.0f} Hz  {b.cn0_dbhz:>6.1f}  "
-                   f"{caf.peak_ratio:>6.1f}  {len(caf.peaks)}")
+                   f"{caf.peak_ratio:>6.1f}  {caf.second_peak_ratio:>5.2f}  {len(caf.peaks)}")
     if plot_path:
         from .receiver.plots import plot_cafs
         plot_cafs([c for c in cafs.values() if c.best], plot_path)
@@ -115,7 +123,9 @@ def acquire(file, fs_hz, fmt, if_hz, prn_text, start_s, coherent_ms, noncoherent
 @main.command()
 @click.argument("file", type=click.Path(dir_okay=False))
 @click.option("--fs", "fs_hz", type=float, help="sample rate, Hz (else from the SigMF sidecar)")
-@click.option("--format", "fmt", help="ibyte | ishort | gr_complex (else from the SigMF sidecar)")
+@click.option("--format", "fmt", help="ibyte | ishort | gr_complex | byte | short (real, with --if) | a SigMF "
+              "datatype (else from the SigMF sidecar)")
+@click.option("--iq-swap", is_flag=True, help="the front end stores Q before I (spectral inversion)")
 @click.option("--if", "if_hz", type=float, help="intermediate frequency, Hz")
 @click.option("--nav", "nav_path", type=click.Path(dir_okay=False), help="RINEX navigation file (assisted mode)")
 @click.option("--out", "out_dir", default="out/run", show_default=True, type=click.Path(file_okay=False))
@@ -123,7 +133,7 @@ def acquire(file, fs_hz, fmt, if_hz, prn_text, start_s, coherent_ms, noncoherent
 @click.option("--defense", type=click.Choice(["off", "detect", "full"]), help="SemperFi's defence (default full; off = the conventional receiver)")
 @click.option("--adversarial", help="which peak is the attacker's: auto | stronger | later | prn:LIST")
 @click.option("--set", "sets", multiple=True, metavar="SECTION.KEY=VALUE", help="override a configuration key")
-def run(file, fs_hz, fmt, if_hz, nav_path, out_dir, config_path, defense, adversarial, sets) -> None:
+def run(file, fs_hz, fmt, iq_swap, if_hz, nav_path, out_dir, config_path, defense, adversarial, sets) -> None:
     """Receive FILE: acquisition, tracking, navigation, PVT; fixes.csv, NMEA, GPX, GeoJSON, events.jsonl in --out."""
     from .defense.defended import DefendedReceiver
     from .receiver.run import run_file
@@ -131,7 +141,8 @@ def run(file, fs_hz, fmt, if_hz, nav_path, out_dir, config_path, defense, advers
     sets = list(sets) + [f'defense.mode="{defense}"'] * bool(defense) + [f'defense.adversarial="{adversarial}"'] * bool(adversarial)
     try:
         cfg = _receiver_config(config_path, sets)
-        summary = run_file(file, fmt, fs_hz, if_hz, cfg, out_dir, nav_path, live=sys.stderr.isatty(),
+        summary = run_file(file, _sample_format(fmt, iq_swap), fs_hz, if_hz, cfg, out_dir, nav_path,
+                           live=sys.stderr.isatty(),
                            receiver_factory=DefendedReceiver)
     except (ValueError, OSError) as exc:
         _fail(str(exc))
@@ -142,12 +153,14 @@ def run(file, fs_hz, fmt, if_hz, nav_path, out_dir, config_path, defense, advers
 @click.argument("file", type=click.Path(dir_okay=False))
 @click.option("-o", "--out", "out_path", required=True, type=click.Path(dir_okay=False), help="cleaned IQ file")
 @click.option("--fs", "fs_hz", type=float, help="sample rate, Hz (else from the SigMF sidecar)")
-@click.option("--format", "fmt", help="ibyte | ishort | gr_complex (else from the SigMF sidecar)")
+@click.option("--format", "fmt", help="ibyte | ishort | gr_complex | byte | short (real, with --if) | a SigMF "
+              "datatype (else from the SigMF sidecar)")
+@click.option("--iq-swap", is_flag=True, help="the front end stores Q before I (spectral inversion)")
 @click.option("--if", "if_hz", type=float, help="intermediate frequency, Hz")
 @click.option("--adversarial", help="which peak is the attacker's: auto | stronger | later | prn:LIST")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), help="TOML configuration")
 @click.option("--set", "sets", multiple=True, metavar="SECTION.KEY=VALUE", help="override a configuration key")
-def clean(file, out_path, fs_hz, fmt, if_hz, adversarial, config_path, sets) -> None:
+def clean(file, out_path, fs_hz, fmt, iq_swap, if_hz, adversarial, config_path, sets) -> None:
     """Plug-in filter: write FILE with the spoofer's signals cancelled to OUT (same format and rate), for any
     receiver; events go to OUT's stem + .events.jsonl."""
     from .defense.clean import clean_file
@@ -155,7 +168,7 @@ def clean(file, out_path, fs_hz, fmt, if_hz, adversarial, config_path, sets) -> 
     sets = ['defense.mode="full"'] + list(sets) + [f'defense.adversarial="{adversarial}"'] * bool(adversarial)
     try:
         cfg = _receiver_config(config_path, sets)
-        s = clean_file(file, out_path, fmt, fs_hz, if_hz, cfg, progress=sys.stderr.isatty())
+        s = clean_file(file, out_path, _sample_format(fmt, iq_swap), fs_hz, if_hz, cfg, progress=sys.stderr.isatty())
     except (ValueError, OSError) as exc:
         _fail(str(exc))
     click.echo(f"cleaned {s.duration_s:.1f} s in {s.wall_s:.1f} s into {s.out_path}")
@@ -166,6 +179,41 @@ def clean(file, out_path, fs_hz, fmt, if_hz, adversarial, config_path, sets) -> 
         click.echo(f"  PRN {prn:>2}: attenuation {', '.join(map(str, last)) or 'not yet measured'} dB (per SIC stage)")
     if s.gave_up:
         click.echo(f"  gave up on: {s.gave_up}", err=True)
+
+
+class _StdinSource:
+    """Standard input as a one-shot sample source for `acquire -`."""
+
+    def __init__(self, fmt, fs_hz, if_hz):
+        from .iq.formats import _finite_float, _positive_float, as_format
+        if fmt is None or fs_hz is None:
+            raise ValueError("reading samples from standard input needs --format and --fs")
+        self.fmt, self.fs_hz = as_format(fmt), _positive_float(fs_hz, "sample rate (--fs)")
+        self.if_hz = _finite_float(if_hz or 0.0, "intermediate frequency (--if)")
+        if not self.fmt.is_complex and not 0 < abs(self.if_hz) < self.fs_hz / 2:
+            raise ValueError(f"real-valued samples ({self.fmt.name}) need --if between 0 and fs/2")
+
+    def read(self, start_sample: int, n_samples: int):
+        from .iq.stream import read_stream
+        return read_stream(sys.stdin.buffer, self.fmt, n_samples, skip_samples=start_sample)
+
+
+def _rtl_tcp_source(url: str, fs_hz):
+    from .iq.rtltcp import RtlTcpSource
+    host, _, port = url[len("rtl_tcp://"):].rpartition(":")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536 or fs_hz is None:
+        raise ValueError(f"expected rtl_tcp://HOST:PORT with --fs, got {url!r}")
+    return RtlTcpSource(host, int(port), fs_hz)
+
+
+def _sample_format(fmt, iq_swap: bool):
+    """--format, with I and Q exchanged when --iq-swap says so (raises ValueError on a bad name)."""
+    if not iq_swap:
+        return fmt
+    from .iq.formats import with_iq_swap
+    if fmt is None:
+        raise ValueError("--iq-swap needs --format (the swap is part of how the samples are laid out)")
+    return with_iq_swap(fmt)
 
 
 def _receiver_config(path, sets) -> dict:

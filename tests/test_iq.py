@@ -43,7 +43,7 @@ def test_unknown_format_name_lists_the_valid_ones():
     message = _one_line_value_error(excinfo)
     for name in ("ibyte", "ishort", "gr_complex", "cfloat"):
         assert name in message, f"{name!r} missing from {message!r}"
-    assert set(FORMAT_NAMES) == {"ibyte", "ishort", "gr_complex", "cfloat"}
+    assert set(FORMAT_NAMES) == {"ibyte", "ishort", "gr_complex", "cfloat", "byte", "short", "float"}
 
 
 # --- writing and the byte layout ---------------------------------------------------------------------------------
@@ -341,3 +341,53 @@ def test_read_sigmf_meta_direct(tmp_path):
     meta = read_sigmf_meta(path)
     assert (meta.datatype, meta.sample_rate_hz, meta.if_hz, meta.extra) == ("cf32_le", 1e6, 5.0, {"run": {"seed": 3}})
     assert meta.implied_if_hz() == 5.0
+
+
+# --- real-valued IF samples, SigMF datatypes, spectral inversion ---------------------------------------------------
+
+from semperfi.iq import FORMATS, decode_items, encode_samples, with_iq_swap  # noqa: E402
+
+
+@pytest.mark.parametrize("fmt", FORMATS, ids=lambda f: f.name)
+def test_every_format_round_trips_within_half_a_step(fmt):
+    x = _noise(500, 20.0).astype(np.complex64)
+    items, clipped = encode_samples(x, fmt)
+    y = decode_items(items, fmt)
+    want = x if fmt.is_complex else x.real.astype(np.complex64)
+    # Integers: rounding (0.5) plus, for unsigned, mid-scale 127.5 stored as 128 (0.5 more).
+    tol = (1.01 if fmt.offset else 0.51) if fmt.is_integer else 1e-3
+    err = np.abs((y - want).view(np.float32)).max()   # per I or Q value
+    assert clipped == 0 and err < tol, f"{fmt.name}: error {err:.3f}"
+    assert len(items) * fmt.item_dtype.itemsize == len(x) * fmt.bytes_per_sample
+
+
+def test_real_byte_file_is_x_plus_0j_at_its_if(tmp_path):
+    path = tmp_path / "real.bin"
+    np.array([1, -2, 3, -128, 127], dtype=np.int8).tofile(path)
+    r = open_iq(path, "byte", 12e6, 3e6)
+    assert np.array_equal(r.read(0, 5), np.array([1, -2, 3, -128, 127], dtype=np.complex64))
+    assert (len(r), r.if_hz) == (5, 3e6)
+
+
+def test_iq_swap_reads_q_first_and_writes_it_back_the_same(tmp_path):
+    path = tmp_path / "swapped.bin"
+    np.array([2, 1, -4, 3], dtype=np.int16).tofile(path)   # Q, I, Q, I
+    fmt = with_iq_swap("ishort")
+    assert np.array_equal(IqReader(path, fmt, 4e6).read(0, 2), np.array([1 + 2j, 3 - 4j], dtype=np.complex64))
+    items, _ = encode_samples(np.array([1 + 2j, 3 - 4j], dtype=np.complex64), fmt)
+    assert items.tolist() == [2, 1, -4, 3]
+    with pytest.raises(ValueError, match="real samples"):
+        with_iq_swap("byte")
+
+
+def test_foreign_sigmf_recording_with_ri16_and_rf_centre_frequency(tmp_path):
+    """A SigMF recording by another tool: real int16 samples, L1 placed by core:frequency, not by our namespace."""
+    import json
+    data = tmp_path / "capture.sigmf-data"
+    np.arange(-8, 8, dtype="<i2").tofile(data)
+    meta = {"global": {"core:datatype": "ri16_le", "core:sample_rate": 16.368e6, "core:version": "1.0.0"},
+            "captures": [{"core:sample_start": 0, "core:frequency": 1575.42e6 - 4.092e6}], "annotations": []}
+    (tmp_path / "capture.sigmf-meta").write_text(json.dumps(meta))
+    r = open_iq(data)
+    assert (r.fmt.name, r.fs_hz, r.if_hz) == ("short", 16.368e6, 4.092e6)
+    assert np.array_equal(r.read(0, 3), np.array([-8, -7, -6], dtype=np.complex64))

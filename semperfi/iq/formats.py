@@ -1,59 +1,100 @@
-"""Sample formats of complex IQ files, named as GNSS-SDR's file source names them (`item_type`).
+"""Sample formats of IQ files, named as GNSS-SDR's file source names them (`item_type`) and as SigMF's core
+datatypes name them (`ci16_le`, `ri8`, `cu8`, ...).
 
-Every format stores one complex sample as I then Q, little-endian. Decoding gives complex64 with the raw integer
-values (no normalisation, as GNSS-SDR does); encoding multiplies by a scale, rounds, clips and counts the clipping.
+Complex formats store one sample as I then Q; real formats store one real sample of a signal at an IF (GNSS-SDR's
+`byte`/`short`, PocketSDR's "I" sampling). Decoding gives complex64 with the raw values (no normalisation, as
+GNSS-SDR does; unsigned integers are centred on their mid-scale, as rtl_sdr's uint8 are). A real sample decodes to
+x + 0j at its IF: correlating it with a complex carrier at +IF picks the upper of its two spectral images, as
+SoftGNSS does, so the chain needs no other change (the image at -IF is 2 IF away from any Doppler searched).
 """
 
 from __future__ import annotations
 
 import math
 import numbers
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 
 @dataclass(frozen=True)
 class SampleFormat:
-    """How one complex sample is laid out on disk."""
-    name: str                 # GNSS-SDR item_type: 'ibyte', 'ishort', 'gr_complex'
-    item_dtype: np.dtype      # numpy dtype of one stored item (an I or Q integer, or a whole complex64)
-    bytes_per_sample: int     # bytes of one complex sample (I and Q together)
+    """How one sample is laid out on disk."""
+    name: str                 # GNSS-SDR item_type where it has one ('ibyte', 'byte', ...), else the SigMF datatype
+    item_dtype: np.dtype      # numpy dtype of one stored item (an I, a Q, a real value, or a whole complex)
+    bytes_per_sample: int     # bytes of one sample (I and Q together for complex formats)
     sigmf_datatype: str       # SigMF core:datatype
+    is_complex: bool = True   # False: real samples at an IF
+    iq_swapped: bool = False  # the front end stores Q before I (a spectrally inverted signal)
+
+    @property
+    def unswapped(self) -> SampleFormat:
+        return replace(self, iq_swapped=False)
 
     @property
     def items_per_sample(self) -> int:
-        """2 for interleaved integers (I, Q), 1 for complex floats."""
+        """2 for interleaved integers (I, Q), 1 for complex floats and for real samples."""
         return self.bytes_per_sample // self.item_dtype.itemsize
 
     @property
     def is_integer(self) -> bool:
-        return self.item_dtype.kind == "i"
+        return self.item_dtype.kind in "iu"
+
+    @property
+    def offset(self) -> float:
+        """Mid-scale of an unsigned integer format (127.5 for uint8), subtracted on decoding; 0 otherwise."""
+        if self.item_dtype.kind != "u":
+            return 0.0
+        return (int(np.iinfo(self.item_dtype).max) + 1) / 2 - 0.5
 
 
-IBYTE = SampleFormat("ibyte", np.dtype("<i1"), 2, "ci8")
-ISHORT = SampleFormat("ishort", np.dtype("<i2"), 4, "ci16_le")
-GR_COMPLEX = SampleFormat("gr_complex", np.dtype("<c8"), 8, "cf32_le")
+def _sigmf_format(datatype: str, name: str | None = None) -> SampleFormat:
+    """The format of a SigMF core:datatype such as 'ci16_le', 'ri8', 'cf32_be', 'cu8'."""
+    kind, body = datatype[0], datatype[1:]
+    base, _, endian = body.partition("_")
+    code = {"i": "i", "u": "u", "f": "f"}[base[0]]
+    size = int(base[1:]) // 8
+    item = np.dtype(("<" if endian != "be" else ">") + code + str(size)) if size > 1 else np.dtype(code + "1")
+    if kind == "c" and code == "f":   # a complex float is one numpy item
+        item = np.dtype(item.byteorder.replace("=", "<") + "c" + str(2 * size))
+        return SampleFormat(name or datatype, item, 2 * size, datatype)
+    return SampleFormat(name or datatype, item, (2 if kind == "c" else 1) * size, datatype, is_complex=kind == "c")
 
-FORMATS: tuple[SampleFormat, ...] = (IBYTE, ISHORT, GR_COMPLEX)
-_ALIASES = {"cfloat": GR_COMPLEX}
-_BY_NAME = {f.name: f for f in FORMATS} | _ALIASES
+
+# GNSS-SDR's item types, then every SigMF core datatype we can decode (the complex ones first).
+IBYTE = _sigmf_format("ci8", "ibyte")
+ISHORT = _sigmf_format("ci16_le", "ishort")
+GR_COMPLEX = _sigmf_format("cf32_le", "gr_complex")
+BYTE = _sigmf_format("ri8", "byte")
+SHORT = _sigmf_format("ri16_le", "short")
+FLOAT = _sigmf_format("rf32_le", "float")
+_SIGMF_ONLY = tuple(_sigmf_format(d) for d in (
+    "cu8", "ci16_be", "cu16_le", "cu16_be", "ci32_le", "ci32_be", "cf32_be", "cf64_le", "cf64_be",
+    "ru8", "ri16_be", "ru16_le", "ru16_be", "ri32_le", "ri32_be", "rf32_be", "rf64_le", "rf64_be"))
+
+FORMATS: tuple[SampleFormat, ...] = (IBYTE, ISHORT, GR_COMPLEX, BYTE, SHORT, FLOAT) + _SIGMF_ONLY
+_ALIASES = {"cfloat": GR_COMPLEX, "cbyte": IBYTE, "cshort": ISHORT}
+_BY_NAME = {f.name: f for f in FORMATS} | _ALIASES | {f.sigmf_datatype: f for f in FORMATS}
 _BY_SIGMF = {f.sigmf_datatype: f for f in FORMATS}
-FORMAT_NAMES: tuple[str, ...] = tuple(_BY_NAME)
+FORMAT_NAMES: tuple[str, ...] = ("ibyte", "ishort", "gr_complex", "cfloat", "byte", "short", "float")
+SIGMF_DATATYPES: tuple[str, ...] = tuple(_BY_SIGMF)
 
 
 def format_by_name(name: str) -> SampleFormat:
-    """The format GNSS-SDR calls `name` ('ibyte', 'ishort', 'gr_complex' or its alias 'cfloat')."""
+    """The format GNSS-SDR calls `name` ('ibyte', 'ishort', 'gr_complex'/'cfloat', real 'byte', 'short', 'float')
+    or a SigMF core datatype ('ci8', 'ri16_le', 'cu8', ...)."""
     key = name.strip().lower() if isinstance(name, str) else None
     if key not in _BY_NAME:
-        raise ValueError(f"unknown sample format {_short(name)}; valid formats: {', '.join(FORMAT_NAMES)}")
+        raise ValueError(f"unknown sample format {_short(name)}; valid formats: {', '.join(FORMAT_NAMES)}, "
+                         f"or a SigMF datatype ({', '.join(SIGMF_DATATYPES[:8])}, ...)")
     return _BY_NAME[key]
 
 
 def format_by_sigmf_datatype(datatype: str) -> SampleFormat:
-    """The format whose SigMF core:datatype is `datatype` ('ci8', 'ci16_le', 'cf32_le')."""
+    """The format whose SigMF core:datatype is `datatype` ('ci8', 'ci16_le', 'cf32_le', 'ri8', 'cu8', ...)."""
     if not isinstance(datatype, str) or datatype not in _BY_SIGMF:
-        raise ValueError(f"unsupported SigMF datatype {_short(datatype)}; supported: {', '.join(_BY_SIGMF)}")
+        raise ValueError(f"unsupported SigMF datatype {_short(datatype)}; supported: c|r + i8, u8, i16, u16, i32 "
+                         "(_le/_be), f32, f64 (_le/_be)")
     return _BY_SIGMF[datatype]
 
 
@@ -64,19 +105,45 @@ def as_format(fmt: SampleFormat | str) -> SampleFormat:
     return format_by_name(fmt)
 
 
+def with_iq_swap(fmt: SampleFormat | str) -> SampleFormat:
+    """`fmt` with I and Q exchanged on disk (Q first), for front ends that deliver Q/I; complex formats only."""
+    fmt = as_format(fmt)
+    if not fmt.is_complex:
+        raise ValueError(f"--iq-swap applies to complex samples; {fmt.name!r} holds real samples")
+    return replace(fmt, iq_swapped=True)
+
+
 def decode_items(items: np.ndarray, fmt: SampleFormat) -> np.ndarray:
-    """Stored items (whole samples) -> a new complex64 array of I + jQ, raw values, not normalised."""
-    if fmt.is_integer:
-        # Interleaved I,Q integers cast to float32 *are* a complex64 array in memory: one cast, no temporaries.
-        return np.asarray(items).astype(np.float32).view(np.complex64)
-    return np.array(items, dtype=np.complex64)   # a copy in native byte order, detached from any memmap
+    """Stored items (whole samples) -> a new complex64 array, raw values, not normalised.
+
+    Complex formats give I + jQ (with `fmt.iq_swapped` the first stored value is Q: front ends that deliver Q
+    first, i.e. a spectrally inverted signal); real formats give x + 0j.
+    """
+    items = np.asarray(items)
+    if fmt.is_complex and not fmt.is_integer:
+        out = np.array(items, dtype=np.complex64)   # a copy in native byte order, detached from any memmap
+        if fmt.iq_swapped:
+            out = out.view(np.float32).reshape(-1, 2)[:, ::-1].copy().view(np.complex64).ravel()
+        return out
+    values = items.astype(np.float32)
+    if fmt.offset:
+        values -= np.float32(fmt.offset)
+    if not fmt.is_complex:
+        out = np.zeros(values.size, dtype=np.complex64)
+        out.real = values
+        return out
+    if fmt.iq_swapped:
+        values = values.reshape(-1, 2)[:, ::-1].copy()
+    # Interleaved I,Q as float32 *are* a complex64 array in memory: no further temporaries.
+    return values.reshape(-1).view(np.complex64)
 
 
 def encode_samples(samples: np.ndarray, fmt: SampleFormat, scale: float = 1.0) -> tuple[np.ndarray, int]:
-    """Complex samples -> (items in `fmt` ready to write, number of complex samples clipped).
+    """Complex samples -> (items in `fmt` ready to write, number of samples clipped).
 
     Integers: I and Q are multiplied by `scale`, rounded to nearest and clipped to the integer range; a sample
     counts as clipped when I or Q had to be. Floats: multiplied by `scale`; overflow to inf counts as clipped.
+    Real formats keep the real part (the samples are a real signal at an IF).
     """
     x = np.asarray(samples)
     if x.ndim != 1:
@@ -88,16 +155,26 @@ def encode_samples(samples: np.ndarray, fmt: SampleFormat, scale: float = 1.0) -
     iq = np.ascontiguousarray(x, dtype=work).view(part)
     if not np.isfinite(iq).all():
         raise ValueError("samples contain NaN or infinity; refusing to write them")
+    per_sample = 2
+    if fmt.iq_swapped:
+        iq = iq.reshape(-1, 2)[:, ::-1].ravel()   # a copy, written Q first as the input was
+    if not fmt.is_complex:
+        iq, per_sample = iq[0::2].copy(), 1
     with np.errstate(over="ignore", invalid="ignore"):
         scaled = iq * scale if scale != 1.0 else iq.copy()
         if not fmt.is_integer:
-            out = scaled.astype("<f4").view(fmt.item_dtype)
-            clipped = int((~np.isfinite(out)).sum())
-            return out, clipped
+            if fmt.is_complex:   # write I, Q as floats of half the complex item's size, same byte order
+                part_dtype = fmt.item_dtype.byteorder.replace("=", "<") + "f" + str(fmt.item_dtype.itemsize // 2)
+                out = scaled.astype(part_dtype).view(fmt.item_dtype)
+            else:
+                out = scaled.astype(fmt.item_dtype)
+            return out, int((~np.isfinite(out)).sum())
         info = np.iinfo(fmt.item_dtype)
         np.rint(scaled, out=scaled)
+        if fmt.offset:
+            scaled += np.ceil(fmt.offset)   # 0 -> mid-scale (128 for uint8)
         over = (scaled < info.min) | (scaled > info.max)
-        clipped = int(over.reshape(-1, 2).any(axis=1).sum())
+        clipped = int(over.reshape(-1, per_sample).any(axis=1).sum())
         np.clip(scaled, info.min, info.max, out=scaled)
         return scaled.astype(fmt.item_dtype), clipped
 

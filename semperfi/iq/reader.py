@@ -45,6 +45,10 @@ class IqReader:
         self.fmt = as_format(fmt)
         self.fs_hz = None if fs_hz is None else _positive_float(fs_hz, "sample rate (fs_hz)")
         self.if_hz = _finite_float(if_hz, "intermediate frequency (if_hz)")
+        if not self.fmt.is_complex and self.fs_hz is not None and not 0 < abs(self.if_hz) < self.fs_hz / 2:
+            # A real signal's spectrum is symmetric: L1 must sit at an IF strictly inside (0, fs/2) to be seen.
+            raise ValueError(f"real-valued samples ({self.fmt.name}) need the IF of L1 between 0 and fs/2 "
+                             f"({self.fs_hz / 2:g} Hz): pass --if <Hz>, got {self.if_hz:g} Hz")
         self.chunk_samples = _count(chunk_samples, "chunk_samples")
         if self.chunk_samples == 0:
             raise ValueError("chunk_samples must be at least 1")
@@ -136,7 +140,8 @@ class IqReader:
 
     def __repr__(self) -> str:
         rate = "unknown" if self.fs_hz is None else f"{self.fs_hz:g} Hz"
-        return (f"IqReader({str(self.path)!r}, {self.fmt.name}, fs={rate}, if={self.if_hz:g} Hz, "
+        swapped = " (I/Q swapped)" if self.fmt.iq_swapped else ""
+        return (f"IqReader({str(self.path)!r}, {self.fmt.name}{swapped}, fs={rate}, if={self.if_hz:g} Hz, "
                 f"{self.n_samples} samples, truncated_bytes={self.truncated_bytes})")
 
 
@@ -170,7 +175,7 @@ def open_iq(path: str | os.PathLike, fmt: SampleFormat | str | None = None, fs_h
         side_fs = meta.sample_rate_hz
         side_if = meta.implied_if_hz()
 
-    if user_fmt is not None and side_fmt is not None and user_fmt != side_fmt:
+    if user_fmt is not None and side_fmt is not None and user_fmt.unswapped != side_fmt:
         raise ValueError(f"format {user_fmt.name!r} disagrees with SigMF sidecar {meta_path} "
                          f"(core:datatype {side_fmt.sigmf_datatype!r} = {side_fmt.name!r})")
     if user_fs is not None and side_fs is not None and not _agree(user_fs, side_fs):
@@ -179,13 +184,14 @@ def open_iq(path: str | os.PathLike, fmt: SampleFormat | str | None = None, fs_h
     if user_if is not None and side_if is not None and not _agree(user_if, side_if):
         raise ValueError(f"IF {user_if:g} Hz disagrees with SigMF sidecar {meta_path} ({side_if:g} Hz)")
 
-    final_fmt = user_fmt or side_fmt
+    final_fmt = user_fmt or side_fmt   # the user's, as it may say the front end swapped I and Q
     final_fs = user_fs if user_fs is not None else side_fs
     final_if = user_if if user_if is not None else (side_if if side_if is not None else 0.0)
     why = f"no SigMF sidecar {path.with_suffix(META_SUFFIX).name}" if meta is None else \
         f"SigMF sidecar {meta_path} does not say"
     if final_fmt is None:
-        raise ValueError(f"sample format of {path} unknown ({why}): pass --format ibyte|ishort|gr_complex")
+        raise ValueError(f"sample format of {path} unknown ({why}): "
+                         "pass --format ibyte|ishort|gr_complex|byte|short|<SigMF datatype>")
     if final_fs is None:
         raise ValueError(f"sample rate of {path} unknown ({why}): pass --fs <Hz>")
     return IqReader(path, final_fmt, final_fs, chunk_samples, if_hz=final_if, sidecar=meta)

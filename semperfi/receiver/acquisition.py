@@ -12,7 +12,7 @@ import scipy.fft
 from scipy import stats
 
 from ..gps.codes import ca_code
-from ..gps.constants import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, CA_CODE_PERIOD_S
+from ..gps.constants import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, CA_CODE_PERIOD_S, L1_HZ
 
 
 @dataclass(frozen=True)
@@ -46,6 +46,8 @@ class Caf:
     threshold: float          # detection threshold on power
     coherent_s: float
     peaks: tuple[Peak, ...]
+    second_peak_ratio: float = 0.0   # best peak over the highest cell away from its code phase (1.5 chips)
+    excised_bins: int = 0            # spectral bins zeroed as DC or spurs before the search
 
     @property
     def best(self) -> Peak | None:
@@ -73,10 +75,88 @@ def _local_replica_fft(prn: int, n: int, fs_hz: float) -> np.ndarray:
     return scipy.fft.fft(ca_code(prn)[chips].astype(np.complex64))
 
 
+EXCISE_DB = 13.0          # a spectral bin this far above its local noise floor is a spur, not GPS (see below)
+EXCISE_MAX_FRACTION = 0.02
+
+
+COMB_MIN_MS = 20            # the 1 kHz comb is notched only in blocks this long (it costs 3 bins in N ms)
+COMB_RATIO = 1.3            # mean comb-bin power over the rest that says "1 ms periodic interference"
+
+
+def excise_narrowband(x: np.ndarray, samples_per_ms: int | None = None,
+                      threshold_db: float = EXCISE_DB) -> tuple[np.ndarray, int]:
+    """Zero the DC offset and narrowband spurs of a block of samples in the frequency domain.
+
+    Real front ends add a DC offset and clock spurs (often at multiples of 1 kHz or of 511.5 kHz) that correlate
+    with every C/A code and make all 32 PRNs look "acquired". GPS itself lies below the noise: at this block's
+    resolution (1 / its length) even a 60 dB-Hz signal's strongest code line is ~13 dB above the floor only when
+    the block is long and the line is not spread by the 50 Hz data, so a bin 13 dB over the local floor (an
+    exponential noise bin does that with probability e^-20) is interference. Bins above it and their two
+    neighbours each side are zeroed; when more than 2 % of bins would go, nothing is excised (broadband
+    interference is not what this fixes).
+
+    Interference that repeats every millisecond (a USB frame clock) lives on a comb of lines at multiples of
+    1 kHz and correlates with every code at Dopplers of k kHz. When the block is whole milliseconds, at least
+    COMB_MIN_MS long, and those comb bins hold clearly more power than the rest, the comb and its neighbours are
+    zeroed: 3 bins in N, a loss of 3/N of a satellite's power. Returns (cleaned samples, bins excised).
+    """
+    n = x.size
+    spec = scipy.fft.fft(x)
+    p = (spec.real ** 2 + spec.imag ** 2).astype(np.float64)
+    # Local noise floor: the median of 64 segments (robust to the few spur bins), as a mean of an exponential.
+    n_seg = 64 if n >= 64 * 16 else 1
+    edges = np.linspace(0, n, n_seg + 1).astype(np.int64)
+    floor = np.empty(n)
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        floor[lo:hi] = np.median(p[lo:hi]) / np.log(2.0)
+    bad = p > floor * 10 ** (threshold_db / 10)
+    bad[0] = True   # DC: an offset there never carries GPS (Doppler 0 of a baseband signal is its centre)
+    for shift in (1, 2):
+        bad |= np.roll(bad, shift) | np.roll(bad, -shift)
+    if bad.sum() > EXCISE_MAX_FRACTION * n:
+        bad[:] = False
+    if samples_per_ms and n % samples_per_ms == 0 and n // samples_per_ms >= COMB_MIN_MS:
+        n_blocks = n // samples_per_ms
+        comb = np.zeros(n, dtype=bool)
+        comb[::n_blocks] = True
+        if np.mean(p[comb] / floor[comb]) > COMB_RATIO * np.mean(p[~comb] / floor[~comb]):
+            bad |= comb | np.roll(comb, 1) | np.roll(comb, -1)
+    n_bad = int(bad.sum())
+    if n_bad == 0:
+        return x, 0
+    spec[bad] = 0
+    return scipy.fft.ifft(spec).astype(np.complex64), n_bad
+
+
+def second_peak_ratio(power: np.ndarray, row: int, col: int, fs_hz: float, exclude_chips: float = 1.5) -> float:
+    """The main peak over the highest CAF cell more than `exclude_chips` from its code phase (any Doppler): a real
+    signal stands alone (ratio well above 1); noise and spurs give a second peak nearly as high (ratio ~1)."""
+    n = power.shape[1]
+    half = int(np.ceil(exclude_chips * fs_hz / CA_CHIP_RATE_HZ))
+    keep = np.ones(n, dtype=bool)
+    keep[(col + np.arange(-half, half + 1)) % n] = False
+    rest = power[:, keep]
+    return float(power[row, col] / rest.max()) if rest.size else float("inf")
+
+
 def _threshold(pfa: float, n_cells: int, n_noncoherent: int) -> float:
     """Threshold on mean |R|^2/sigma^2 over K looks so that the whole search has false-alarm probability pfa."""
     pfa_cell = -np.expm1(np.log1p(-pfa) / n_cells)
     return float(stats.chi2.isf(pfa_cell, 2 * n_noncoherent) / (2 * n_noncoherent))
+
+
+def _empirical_threshold(power: np.ndarray, pfa_cell: float, dopplers_hz: np.ndarray, coherent_s: float) -> float:
+    """The level a CAF's own noise exceeds with probability pfa_cell, from its tail: the 99 % and 99.9 % quantiles
+    extrapolated as an exponential tail. Real captures have heavier tails than the chi-square theory (other
+    satellites' cross-correlation, quantisation, interference left after excision); a few signal cells cannot
+    move these quantiles. Rows within 1.5 / coherent time of the strongest cell are left out: they hold that
+    signal's own code sidelobes, which would hide a weaker signal of the same PRN (the spoofing case)."""
+    top_row = np.unravel_index(int(np.argmax(power)), power.shape)[0]
+    far = np.abs(dopplers_hz - dopplers_hz[top_row]) > 1.5 / coherent_s
+    if far.sum() >= 3:
+        power = power[far]
+    q1, q2 = np.quantile(power, [0.99, 0.999])
+    return float(q2 + (q2 - q1) * np.log(1e-3 / pfa_cell) / np.log(10.0))
 
 
 def _interp(y_minus: float, y0: float, y_plus: float) -> float:
@@ -101,11 +181,15 @@ def find_peaks(power: np.ndarray, threshold: float, max_peaks: int) -> list[tupl
 
 def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: DopplerGrid = DopplerGrid(),
             if_hz: float = 0.0, coherent_ms: int = 1, noncoherent: int = 1, pfa: float = 1e-3,
-            max_peaks: int = 8) -> dict[int, Caf]:
+            max_peaks: int = 8, excise: bool = False,
+            tail_threshold: bool = False) -> dict[int, Caf]:
     """Search each PRN over the Doppler grid and every code phase.
 
-    Uses coherent_ms * noncoherent ms of samples from the start. The noise floor sigma^2 is taken from the CAF's
-    median, robust to the few cells that hold signal.
+    Uses coherent_ms * noncoherent ms of samples from the start; with `excise`, DC and narrowband spurs are
+    excised first (`excise_narrowband`). The noise floor sigma^2 is the CAF's median (with `tail_threshold`, per
+    Doppler row, robust to what is left of interference near one Doppler). With `tail_threshold`
+    the threshold is also at least the CAF's own empirical tail at the false-alarm rate (`_empirical_threshold`):
+    what holds the rate on real captures, where strong satellites' cross-correlation fattens the tail.
     """
     if not 1 <= coherent_ms <= 20 or noncoherent < 1:
         raise ValueError("acquisition wants 1-20 ms coherent and at least one non-coherent sum")
@@ -114,10 +198,14 @@ def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: Dopple
     if samples.size < need:
         raise ValueError(f"acquisition needs {need} samples ({coherent_ms * noncoherent} ms), got {samples.size}")
     x = np.asarray(samples[:need], dtype=np.complex64)
+    excised = 0
+    if excise:
+        x, excised = excise_narrowband(x, n_ms)
     t = np.arange(need) / fs_hz
     dopplers = grid.values_hz()
     code_chips = np.arange(n_ms) * CA_CHIP_RATE_HZ / fs_hz
-    thr = _threshold(pfa, dopplers.size * n_ms, noncoherent)
+    thr_theory = _threshold(pfa, dopplers.size * n_ms, noncoherent)
+    pfa_cell = -np.expm1(np.log1p(-pfa) / (dopplers.size * n_ms))
     chi_median = stats.chi2.median(2 * noncoherent) / (2 * noncoherent)
     # The Doppler wipe-off is shared by all PRNs: FFT each 1 ms block once per Doppler bin.
     spectra = np.empty((dopplers.size, coherent_ms * noncoherent, n_ms), dtype=np.complex64)
@@ -130,8 +218,11 @@ def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: Dopple
         r = scipy.fft.ifft(np.conj(spectra) * replica, axis=2)
         coh = r.reshape(dopplers.size, noncoherent, coherent_ms, n_ms).sum(axis=2)
         raw = np.mean(np.abs(coh) ** 2, axis=1)
-        sigma2 = float(np.median(raw)) / chi_median
+        sigma2 = (np.median(raw, axis=1, keepdims=True) if tail_threshold else np.median(raw)) / chi_median
         power = (raw / sigma2).astype(np.float32)
+        thr = thr_theory
+        if tail_threshold:
+            thr = max(thr, _empirical_threshold(power, pfa_cell, dopplers, coherent_ms * CA_CODE_PERIOD_S))
         peaks = []
         for row, col in find_peaks(power, thr, max_peaks):
             dc = _interp(np.sqrt(power[row, col - 1]), np.sqrt(power[row, col]), np.sqrt(power[row, (col + 1) % n_ms]))
@@ -139,8 +230,13 @@ def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: Dopple
             if 0 < row < dopplers.size - 1:
                 dd = _interp(power[row - 1, col], power[row, col], power[row + 1, col])
             snr = max(float(power[row, col]) - 1.0, 1e-3)
-            peaks.append(Peak(prn, float((col + dc) * CA_CHIP_RATE_HZ / fs_hz % CA_CODE_LENGTH_CHIPS),
-                              float(dopplers[row] + dd * grid.step_hz), float(power[row, col]),
+            doppler_hz = float(dopplers[row] + dd * grid.step_hz)
+            # The peak sits where the code is at mid-block; the code runs fast by doppler/1540 chip/s, so step
+            # back half a block to the first sample (0.17 chip at 2.6 kHz over 200 ms).
+            chips = (col + dc) * CA_CHIP_RATE_HZ / fs_hz - 0.5 * need / fs_hz * doppler_hz * CA_CHIP_RATE_HZ / L1_HZ
+            peaks.append(Peak(prn, float(chips % CA_CODE_LENGTH_CHIPS), doppler_hz, float(power[row, col]),
                               float(10 * np.log10(snr / (coherent_ms * CA_CODE_PERIOD_S)))))
-        result[prn] = Caf(prn, dopplers, code_chips, power, thr, coherent_ms * CA_CODE_PERIOD_S, tuple(peaks))
+        ratio2 = second_peak_ratio(power, *np.unravel_index(int(np.argmax(power)), power.shape), fs_hz)
+        result[prn] = Caf(prn, dopplers, code_chips, power, thr, coherent_ms * CA_CODE_PERIOD_S, tuple(peaks),
+                          ratio2, excised)
     return result

@@ -1,0 +1,39 @@
+"""Samples from a pipe or standard input (`-` as FILE): read in whole samples, never seeking.
+
+A pipe cannot be rewound or sized, so callers say how many samples they want; a stream that ends first is one
+clear ValueError naming how much arrived (never a silently shorter, wrongly timed block).
+"""
+
+from __future__ import annotations
+
+from typing import BinaryIO
+
+import numpy as np
+
+from .formats import SampleFormat, as_format, decode_items
+
+MAX_READ_BYTES = 1 << 30   # one request never asks for more than this (a hostile --fs cannot exhaust memory)
+
+
+def read_stream(stream: BinaryIO, fmt: SampleFormat | str, n_samples: int, skip_samples: int = 0) -> np.ndarray:
+    """Skip `skip_samples`, then return exactly `n_samples` decoded samples (complex64) from `stream`."""
+    fmt = as_format(fmt)
+    for what, count in (("samples to skip", skip_samples), ("samples to read", n_samples)):
+        if int(count) != count or count < 0 or count * fmt.bytes_per_sample > MAX_READ_BYTES:
+            raise ValueError(f"{what} must be a whole number below {MAX_READ_BYTES // fmt.bytes_per_sample}, "
+                             f"got {count!r}")
+    _read_exactly(stream, int(skip_samples) * fmt.bytes_per_sample, "skipping", fmt)
+    raw = _read_exactly(stream, int(n_samples) * fmt.bytes_per_sample, "reading", fmt)
+    return decode_items(np.frombuffer(raw, dtype=fmt.item_dtype), fmt)
+
+
+def _read_exactly(stream: BinaryIO, n_bytes: int, doing: str, fmt: SampleFormat) -> bytes:
+    parts, got = [], 0
+    while got < n_bytes:
+        block = stream.read(min(n_bytes - got, 1 << 22))
+        if not block:
+            raise ValueError(f"input stream ended while {doing}: {got // fmt.bytes_per_sample} of "
+                             f"{n_bytes // fmt.bytes_per_sample} {fmt.name} samples arrived")
+        parts.append(block)
+        got += len(block)
+    return b"".join(parts)

@@ -1,0 +1,105 @@
+"""Claims about the rtl_tcp client, against a local replay server on 127.0.0.1 that stops by itself."""
+
+import socket
+import struct
+import threading
+
+import numpy as np
+import pytest
+
+from semperfi.iq.rtltcp import RtlTcpSource
+
+
+def _server(payload: bytes, header: bytes = b"RTL0" + struct.pack(">II", 5, 29), stall_after: int | None = None):
+    """Serve one client once: header, then payload (stopping after stall_after bytes without closing)."""
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(1)
+    srv.settimeout(10)
+    commands = []
+
+    def run():
+        try:
+            conn, _ = srv.accept()
+        except OSError:
+            return
+        with conn:
+            conn.sendall(header)
+            conn.settimeout(1)
+            got = b""
+            try:
+                while len(got) < 15:   # the client's three 5-byte commands
+                    block = conn.recv(15 - len(got))
+                    if not block:
+                        break
+                    got += block
+            except OSError:
+                pass
+            commands.append(got)
+            body = payload if stall_after is None else payload[:stall_after]
+            try:
+                conn.sendall(body)
+                conn.settimeout(2.0)
+                conn.recv(1)   # silent until the client hangs up (or 2 s pass): a stall, then gone
+            except OSError:
+                pass
+        srv.close()
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    return srv.getsockname()[1], thread, commands
+
+
+def test_replayed_stream_arrives_centred_and_tuned():
+    rng = np.random.default_rng(5)
+    raw = rng.integers(0, 256, size=2 * 4000, dtype=np.uint8)
+    port, thread, commands = _server(raw.tobytes())
+    src = RtlTcpSource("127.0.0.1", port, 2.048e6, timeout_s=3)
+    x = src.read(1000, 2000)
+    src.close()
+    thread.join(5)
+    want = (raw[2000:6000].astype(np.float32) - 127.5).view(np.complex64)
+    assert np.array_equal(x, want), "samples differ from what the server sent"
+    assert src.tuner == "R820T"
+    sent = commands[0]
+    assert struct.unpack(">BI", sent[:5]) == (0x02, 2048000) and struct.unpack(">BI", sent[5:10]) == (0x01, 1575420000)
+
+
+def test_not_an_rtl_tcp_server_is_one_error():
+    port, thread, _ = _server(b"", header=b"HTTP/1.1 200")
+    with pytest.raises(ValueError, match="not an rtl_tcp server"):
+        RtlTcpSource("127.0.0.1", port, 2.048e6, timeout_s=3)
+    thread.join(5)
+
+
+def test_stalled_stream_is_a_clear_error_not_a_short_block():
+    port, thread, _ = _server(bytes(8000), stall_after=1000)
+    src = RtlTcpSource("127.0.0.1", port, 2.048e6, timeout_s=0.5)
+    with pytest.raises(ValueError, match="stalled|closed"):
+        src.read(0, 4000)
+    src.close()
+    thread.join(5)
+
+
+def test_acquire_over_rtl_tcp_end_to_end(tmp_path):
+    """A recording replayed by a local rtl_tcp server: `semperfi acquire rtl_tcp://...` finds its satellite."""
+    import subprocess
+    import sys
+    from semperfi.gps.codes import ca_code
+    fs = 2.048e6
+    n = int(fs * 0.012)
+    t = np.arange(n) / fs
+    chips = np.floor(300.0 + t * 1.023e6).astype(int) % 1023
+    rng = np.random.default_rng(9)
+    x = 0.4 * ca_code(11)[chips] * np.exp(2j * np.pi * -2100.0 * t) + rng.standard_normal(n) + 1j * rng.standard_normal(n)
+    iq = np.empty(2 * n, dtype=np.uint8)
+    iq[0::2] = np.clip(np.rint(127.5 + 25 * x.real), 0, 255)
+    iq[1::2] = np.clip(np.rint(127.5 + 25 * x.imag), 0, 255)
+    port, thread, _ = _server(iq.tobytes())
+    result = subprocess.run([sys.executable, "-m", "semperfi.cli", "acquire", f"rtl_tcp://127.0.0.1:{port}",
+                             "--fs", str(fs), "--prn", "9-13"], capture_output=True, text=True, timeout=120)
+    thread.join(5)
+    assert result.returncode == 0, result.stderr
+    rows = {int(ln.split()[0]): ln.split() for ln in result.stdout.splitlines()[1:]}
+    assert list(rows) == [11], f"expected PRN 11 only:\n{result.stdout}"
+    assert abs(float(rows[11][1]) - 300.0) < 0.1 and abs(float(rows[11][3]) + 2100.0) < 50, result.stdout
