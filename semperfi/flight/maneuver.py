@@ -23,7 +23,7 @@ class ManeuverLimits:
     max_duration_s: float = 20.0
     min_end_distance_m: float = 30.0
     corridor_half_width_m: float = 10.0
-    max_speed_mps: float = 5.0
+    max_speed_mps: float = 4.0
     max_accel_mps2: float = 2.5
     max_vertical_speed_mps: float = 1.0
     geofence_radius_m: float = 60.0
