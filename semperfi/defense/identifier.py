@@ -1,0 +1,199 @@
+"""Adversarial Peak Identifier (paper sections 3.3-4).
+
+(a) ``paper_test``: the paper's test -- the mean Euclidean distance between the IMU (dead-reckoned) track and the
+GPS track, both relative to the maneuver start, against a 5 m threshold.  Above: the tracked peaks are adversarial.
+
+(b) ``identify_peaks``: a per-peak verdict.  During the maneuver a legitimate peak's pseudorange changes by
+    d_rho_k(t) = d_sat_k(t) - u_k . d_p(t) + c*d_b(t)
+(u_k unit line of sight receiver->satellite in NED, d_p the vehicle displacement, d_b the receiver clock change,
+common to all legitimate peaks; d_sat_k the satellite's own range change, predicted from ephemeris for the start
+position).  A static or trajectory-planned spoofer's peak does not follow d_p projected on u_k.  For each peak the
+residual r_k(t) = d_rho_k - d_sat_k + u_k . d_p must equal the common clock; the clock is found as the largest
+consensus among peaks (no assumption on power: a weaker attacker is treated alike), so partial spoofing and several
+candidate peaks per PRN are decided peak by peak.  Doppler is used the same way with the IMU velocity.  A peak
+whose line-of-sight motion during the maneuver is too small to tell is reported ``decided=False``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from semperfi.gps.constants import L1_WAVELENGTH_M
+
+PAPER_THRESHOLD_M = 5.0
+
+
+@dataclass(frozen=True)
+class ImuTrack:
+    """Dead-reckoned track, NED metres from any origin."""
+    t_s: np.ndarray
+    north_m: np.ndarray
+    east_m: np.ndarray
+    down_m: np.ndarray
+
+    def __post_init__(self):
+        n = len(self.t_s)
+        if n < 2 or any(len(a) != n for a in (self.north_m, self.east_m, self.down_m)):
+            raise ValueError("IMU track: need >= 2 samples and equal-length columns")
+        if not np.all(np.isfinite(np.c_[self.t_s, self.north_m, self.east_m, self.down_m])):
+            raise ValueError("IMU track: non-finite value")
+        if np.any(np.diff(self.t_s) <= 0):
+            raise ValueError("IMU track: t_s must increase")
+
+    def position_at(self, t_s) -> np.ndarray:
+        """NED displacement from the track's first sample, (len(t), 3)."""
+        cols = [np.interp(t_s, self.t_s, c - c[0]) for c in (self.north_m, self.east_m, self.down_m)]
+        return np.stack(cols, axis=-1)
+
+    def velocity_at(self, t_s) -> np.ndarray:
+        cols = [np.interp(t_s, self.t_s, np.gradient(c, self.t_s)) for c in (self.north_m, self.east_m, self.down_m)]
+        return np.stack(cols, axis=-1)
+
+
+@dataclass(frozen=True)
+class GpsTrack:
+    t_s: np.ndarray
+    north_m: np.ndarray
+    east_m: np.ndarray
+    down_m: np.ndarray
+
+
+@dataclass(frozen=True)
+class LineOfSight:
+    """Unit vector receiver->satellite in NED at the maneuver start, and the satellite's own range change
+    (predicted from ephemeris for the start position) on ``t_s``."""
+    prn: int
+    u_ned: tuple[float, float, float]
+    t_s: np.ndarray
+    sat_range_change_m: np.ndarray
+    sat_range_rate_change_mps: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class PeakHistory:
+    prn: int
+    peak_id: int
+    t_s: np.ndarray
+    pseudorange_m: np.ndarray
+    doppler_hz: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class PeakVerdict:
+    prn: int
+    peak_id: int
+    adversarial: bool
+    decided: bool
+    score: float          # rms residual against the common clock, in units of the tolerance (<= 1: legitimate)
+    reason: str
+
+
+@dataclass(frozen=True)
+class PaperVerdict:
+    adversarial: bool
+    mean_distance_m: float
+
+
+def paper_test(imu: ImuTrack, gps: GpsTrack, threshold_m: float = PAPER_THRESHOLD_M) -> PaperVerdict:
+    """Mean Euclidean distance between the IMU and GPS tracks, both relative to the maneuver start."""
+    t = np.asarray(gps.t_s, float)
+    t = t[(t >= imu.t_s[0]) & (t <= imu.t_s[-1])]
+    if len(t) < 2:
+        raise ValueError("GPS and IMU tracks do not overlap")
+    p_imu = imu.position_at(t)
+    p_imu -= p_imu[0]
+    p_gps = np.stack([np.interp(t, gps.t_s, c) for c in (gps.north_m, gps.east_m, gps.down_m)], axis=-1)
+    p_gps -= p_gps[0]
+    d = float(np.mean(np.linalg.norm(p_imu - p_gps, axis=1)))
+    return PaperVerdict(d > threshold_m, d)
+
+
+def identify_peaks(peaks, los, imu: ImuTrack, range_tol_m: float = 4.5, doppler_tol_hz: float = 7.5,
+                   min_signature_m: float = 3.0, ambiguous_up_to: float = 1.25) -> list[PeakVerdict]:
+    """Per-peak verdict; see the module docstring.  ``los``: mapping prn -> LineOfSight."""
+    peaks = list(peaks)
+    if not peaks:
+        return []
+    t0, t1 = max(p.t_s[0] for p in peaks), min(p.t_s[-1] for p in peaks)
+    t0, t1 = max(t0, imu.t_s[0]), min(t1, imu.t_s[-1])
+    if t1 <= t0:
+        raise ValueError("peak histories and IMU track do not overlap")
+    t = np.linspace(t0, t1, 101)
+    d_p = imu.position_at(t) - imu.position_at(t[:1])
+    v = imu.velocity_at(t)
+    dv = v - v[:1]
+    res, sig, res_d = [], [], []
+    for p in peaks:
+        if p.prn not in los:
+            raise ValueError(f"no line of sight for PRN {p.prn}")
+        L = los[p.prn]
+        u = np.asarray(L.u_ned, float)
+        u = u / np.linalg.norm(u)
+        rho = np.interp(t, p.t_s, p.pseudorange_m)
+        sat = np.interp(t, L.t_s, L.sat_range_change_m)
+        proj = d_p @ u
+        res.append((rho - rho[0]) - (sat - sat[0]) + proj)
+        sig.append(float(np.sqrt(np.mean((proj - proj.mean()) ** 2))))
+        if p.doppler_hz is not None:
+            rate = -L1_WAVELENGTH_M * np.interp(t, p.t_s, p.doppler_hz)
+            sat_rate = (np.interp(t, L.t_s, L.sat_range_rate_change_mps)
+                        if L.sat_range_rate_change_mps is not None else np.zeros_like(t))
+            res_d.append((rate - rate[0]) - (sat_rate - sat_rate[0]) + dv @ u)
+        else:
+            res_d.append(None)
+    res = np.array(res)
+    use_d = all(r is not None for r in res_d)
+    tol_rate = L1_WAVELENGTH_M * doppler_tol_hz
+
+    def mismatch(i, j):
+        e = np.sqrt(np.mean((res[i] - res[j]) ** 2)) / range_tol_m
+        if use_d:
+            e = max(e, np.sqrt(np.mean((res_d[i] - res_d[j]) ** 2)) / tol_rate)
+        return e
+
+    n = len(peaks)
+    m = np.array([[mismatch(i, j) for j in range(n)] for i in range(n)])
+    # consensus: the hypothesis peak with the most peaks agreeing (tie: smallest total mismatch)
+    counts = [(int(np.sum(m[i] <= 1.0)), -float(np.sum(np.minimum(m[i], 1.0)))) for i in range(n)]
+    best = max(range(n), key=lambda i: counts[i])
+    members = np.flatnonzero(m[best] <= 1.0)
+
+    def against(members):
+        clock = np.median(res[members], axis=0)
+        clock_d = np.median(np.array([res_d[i] for i in members]), axis=0) if use_d else None
+        e = np.sqrt(np.mean((res - clock) ** 2, axis=1)) / range_tol_m
+        if use_d:
+            e = np.maximum(e, np.sqrt(np.mean((np.array(res_d) - clock_d) ** 2, axis=1)) / tol_rate)
+        return e
+
+    errors = against(members)
+    for _ in range(3):   # refine the clock from the peaks that agree with it
+        refined = np.flatnonzero(errors <= 1.0)
+        if len(refined) < len(members) or len(refined) < 2:
+            break
+        members, errors = refined, against(refined)
+    out = []
+    for i, p in enumerate(peaks):
+        e = errors[i]
+        if len(members) < 2:
+            out.append(PeakVerdict(p.prn, p.peak_id, False, False, float(e), "no consensus clock"))
+        elif e <= 1.0 and sig[i] < min_signature_m:
+            # agrees with the clock, but the maneuver barely moved along this line of sight: not proven
+            out.append(PeakVerdict(p.prn, p.peak_id, False, False, float(e),
+                                   f"line-of-sight motion {sig[i]:.1f} m too small to decide"))
+        elif e <= 1.0:
+            out.append(PeakVerdict(p.prn, p.peak_id, False, True, float(e), "follows the vehicle's motion"))
+        elif e <= ambiguous_up_to:
+            # IMU drift at the paper's level reaches here on legitimate peaks: neither cleared nor cancelled
+            out.append(PeakVerdict(p.prn, p.peak_id, False, False, float(e), "ambiguous residual"))
+        else:
+            out.append(PeakVerdict(p.prn, p.peak_id, True, True, float(e),
+                                   "does not follow the vehicle's motion on its line of sight"))
+    # one satellite has one legitimate signal: if several of its peaks pass, the maneuver did not tell them apart
+    passed = {}
+    for v in out:
+        if v.decided and not v.adversarial:
+            passed[v.prn] = passed.get(v.prn, 0) + 1
+    return [PeakVerdict(v.prn, v.peak_id, False, False, v.score, "several peaks of this PRN follow the motion")
+            if passed.get(v.prn, 0) > 1 and v.decided and not v.adversarial else v for v in out]

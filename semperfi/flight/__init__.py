@@ -1,0 +1,1 @@
+"""Flight-controller side: maneuvers, dead reckoning, MAVLink, the link to the receiver."""

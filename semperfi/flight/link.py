@@ -1,0 +1,124 @@
+"""Authenticated link between the flight side and the receiver (TCP).
+
+Schema, version 1.  Each frame on the wire:
+
+    4 bytes  big-endian length N of the rest (N <= MAX_FRAME_BYTES)
+    N bytes  = 32-byte HMAC-SHA256(key, body) || body
+    body     = UTF-8 JSON object {"v": 1, "type": T, "seq": int, "ts": float (UNIX s), "payload": {...}}
+
+Types, in the order of one identification round:
+    "alarm"             receiver -> flight  {"reason": str}
+    "maneuver_request"  flight -> receiver  {"maneuver_id": str}      (flight has drawn the maneuver itself)
+    "maneuver_done"     flight -> receiver  {"maneuver_id": str, "t_s": [...], "north_m": [...],
+                                             "east_m": [...], "down_m": [...]}   (the IMU track)
+    "verdict"           receiver -> flight  {"maneuver_id": str, "adversarial": bool, "peaks": [...]}
+
+Each direction keeps its own strictly increasing ``seq``; a receiver of frames rejects a seq not above the last
+accepted one (replay) and a timestamp outside +-MAX_SKEW_S of its clock.  The key is pre-shared.  Any malformed,
+unauthenticated, replayed, truncated or oversized frame raises LinkError (logged); reads have a timeout so a
+silent or slow peer cannot stall the other side.
+"""
+from __future__ import annotations
+
+import hashlib
+import hmac
+import json
+import logging
+import socket
+import struct
+import time
+
+VERSION = 1
+MAX_FRAME_BYTES = 1 << 20
+MAX_SKEW_S = 5.0
+TYPES = {"alarm", "maneuver_request", "maneuver_done", "verdict"}
+_MAC = 32
+log = logging.getLogger(__name__)
+
+
+class LinkError(Exception):
+    pass
+
+
+class Codec:
+    """Signs outgoing and checks incoming messages for one endpoint."""
+
+    def __init__(self, key: bytes, clock=time.time):
+        if len(key) < 16:
+            raise ValueError("pre-shared key must be at least 16 bytes")
+        self._key = key
+        self._clock = clock
+        self._seq_out = 0
+        self._seq_in = -1
+
+    def encode(self, msg_type: str, payload: dict) -> bytes:
+        if msg_type not in TYPES:
+            raise ValueError(f"unknown message type {msg_type!r}")
+        self._seq_out += 1
+        body = json.dumps({"v": VERSION, "type": msg_type, "seq": self._seq_out, "ts": self._clock(),
+                           "payload": payload}, separators=(",", ":")).encode()
+        frame = hmac.new(self._key, body, hashlib.sha256).digest() + body
+        if len(frame) > MAX_FRAME_BYTES:
+            raise ValueError("message too large")
+        return struct.pack(">I", len(frame)) + frame
+
+    def decode(self, frame: bytes) -> tuple[str, dict]:
+        """Check one frame (without the length prefix); returns (type, payload)."""
+        try:
+            return self._decode(frame)
+        except LinkError as e:
+            log.warning("link: rejected message: %s", e)
+            raise
+
+    def _decode(self, frame: bytes):
+        if len(frame) > MAX_FRAME_BYTES:
+            raise LinkError("oversized")
+        if len(frame) <= _MAC:
+            raise LinkError("truncated")
+        mac, body = frame[:_MAC], frame[_MAC:]
+        if not hmac.compare_digest(mac, hmac.new(self._key, body, hashlib.sha256).digest()):
+            raise LinkError("bad authentication code")
+        try:
+            msg = json.loads(body.decode("utf-8"))
+        except (UnicodeDecodeError, ValueError):
+            raise LinkError("malformed body") from None
+        if not isinstance(msg, dict) or msg.get("v") != VERSION:
+            raise LinkError("wrong schema version")
+        seq, ts, t, payload = msg.get("seq"), msg.get("ts"), msg.get("type"), msg.get("payload")
+        if (not isinstance(seq, int) or isinstance(seq, bool) or not isinstance(ts, (int, float))
+                or t not in TYPES or not isinstance(payload, dict)):
+            raise LinkError("malformed fields")
+        if seq <= self._seq_in:
+            raise LinkError(f"replayed sequence number {seq}")
+        if abs(self._clock() - ts) > MAX_SKEW_S:
+            raise LinkError("stale or future timestamp")
+        self._seq_in = seq
+        return t, payload
+
+
+def _recv_exact(sock: socket.socket, n: int) -> bytes:
+    buf = bytearray()
+    while len(buf) < n:
+        chunk = sock.recv(n - len(buf))
+        if not chunk:
+            raise LinkError("truncated: peer closed")
+        buf += chunk
+    return bytes(buf)
+
+
+def send(sock: socket.socket, codec: Codec, msg_type: str, payload: dict) -> None:
+    sock.sendall(codec.encode(msg_type, payload))
+
+
+def receive(sock: socket.socket, codec: Codec, timeout_s: float = 5.0) -> tuple[str, dict]:
+    """Read one frame; LinkError on anything wrong, including a timeout."""
+    sock.settimeout(timeout_s)
+    try:
+        (n,) = struct.unpack(">I", _recv_exact(sock, 4))
+        if n > MAX_FRAME_BYTES:
+            log.warning("link: rejected message: oversized (%d bytes)", n)
+            raise LinkError("oversized")
+        return codec.decode(_recv_exact(sock, n))
+    except (socket.timeout, TimeoutError):
+        log.warning("link: timed out waiting for a message")
+        raise LinkError("timeout") from None

@@ -1,0 +1,125 @@
+"""Adversarial Peak Identifier on synthetic histories built from geometry (no IQ rendering)."""
+import numpy as np
+import pytest
+
+from semperfi.defense.identifier import (GpsTrack, ImuTrack, LineOfSight, PeakHistory, identify_peaks,
+                                         paper_test)
+from semperfi.flight.maneuver import Leg, ManeuverLimits, plan_trajectory
+from semperfi.gps.constants import L1_WAVELENGTH_M, SPEED_OF_LIGHT_M_S
+
+VRW_MPS = 1.59 / 3.6   # the paper's worst velocity random walk over the maneuver
+
+
+def seeded_maneuver(rng):
+    legs = []
+    for _ in range(3):
+        h = rng.uniform(0, 2 * np.pi)
+        s = rng.uniform(2.5, 5.0)
+        legs.append(Leg(s * np.cos(h), s * np.sin(h), rng.uniform(-0.5, 0.5), 5.0))
+    t, n, e, d = plan_trajectory(legs, ManeuverLimits(dt_s=0.1))
+    return t, np.c_[n, e, d]
+
+
+def imu_track(rng, t, p):
+    # velocity error growing as a random walk to ~VRW at the end, plus a constant bias share
+    dt = np.diff(t, prepend=t[0])
+    walk = np.cumsum(rng.normal(0, 1, (len(t), 3)) * np.sqrt(dt)[:, None], axis=0)
+    v_err = walk * (VRW_MPS / np.sqrt(t[-1]) / np.sqrt(3))
+    p_err = np.cumsum(v_err * dt[:, None], axis=0)
+    q = p + p_err
+    return ImuTrack(t, q[:, 0], q[:, 1], q[:, 2])
+
+
+def scene(seed, n_prn=8, spoofed=(), spoofer_ned=(0.0, 1000.0, 0.0)):
+    rng = np.random.default_rng(seed)
+    t, p = seeded_maneuver(rng)
+    az = rng.uniform(0, 2 * np.pi, n_prn)
+    el = rng.uniform(np.radians(15), np.radians(85), n_prn)
+    u = np.c_[np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), -np.sin(el)]
+    drift_mps = rng.uniform(-50, 50)          # receiver clock drift, common to legitimate peaks
+    clk = drift_mps * t + 0.5 * rng.normal(0, 0.05) * t ** 2
+    los, peaks = {}, []
+    v = np.gradient(p, t, axis=0)
+    spoofer = np.asarray(spoofer_ned)
+    d_spoof = np.linalg.norm(p - spoofer, axis=1)
+    clk_s = rng.uniform(-50, 50) * t
+    for k in range(n_prn):
+        prn = k + 1
+        rate0, acc = rng.uniform(-800, 800), rng.uniform(-0.2, 0.2)
+        sat = rate0 * t + 0.5 * acc * t ** 2
+        sat_rate = rate0 + acc * t
+        los[prn] = LineOfSight(prn, tuple(u[k]), t, sat, sat_rate - sat_rate[0])
+        rho = 2.2e7 + sat - p @ u[k] + clk + rng.normal(0, 1.0, len(t))
+        rr = sat_rate - v @ u[k] + np.gradient(clk, t)
+        peaks.append(PeakHistory(prn, 0, t, rho, -rr / L1_WAVELENGTH_M + rng.normal(0, 1.0, len(t))))
+        if prn in spoofed:
+            # a static spoofer 1 km away replaying the start position, synchronized; its power plays no part
+            rho_s = 2.2e7 + sat + clk + clk_s + (d_spoof - d_spoof[0]) + rng.normal(0, 1.0, len(t))
+            rr_s = sat_rate + np.gradient(clk + clk_s + d_spoof, t)
+            peaks.append(PeakHistory(prn, 1, t, rho_s, -rr_s / L1_WAVELENGTH_M + rng.normal(0, 1.0, len(t))))
+    return peaks, los, imu_track(rng, t, p), t, p
+
+
+def rates(n_runs, spoofed):
+    hits = total = false = legit = undecided = 0
+    for seed in range(n_runs):
+        peaks, los, imu, _, _ = scene(seed, spoofed=spoofed)
+        for v in identify_peaks(peaks, los, imu):
+            truth_adv = v.peak_id == 1
+            if not v.decided:
+                undecided += 1
+                continue
+            if truth_adv:
+                total += 1
+                hits += v.adversarial
+            else:
+                legit += 1
+                false += v.adversarial
+    return hits, total, false, legit, undecided
+
+
+@pytest.mark.parametrize("spoofed", [tuple(range(1, 9)), (1, 3, 5, 7)], ids=["all8", "partial4of8"])
+def test_per_peak_verdict_identifies_spoofer_peaks(spoofed):
+    hits, total, false, legit, undecided = rates(50, spoofed)
+    assert total >= 0.98 * 50 * len(spoofed)
+    assert hits == total                      # every decided spoofed peak flagged
+    assert false == 0                         # no legitimate peak flagged
+    assert undecided <= 0.35 * 50 * 8          # high satellites see little of a horizontal maneuver
+
+
+def test_no_attacker_no_false_identification():
+    hits, total, false, legit, undecided = rates(50, ())
+    assert total == 0 and false == 0 and legit > 0.6 * 400
+
+
+def test_legitimate_peak_without_motion_compensation_is_flagged():
+    # a peak that ignores the vehicle's motion (the spoofer's signature) must not pass as legitimate
+    peaks, los, imu, t, p = scene(3)
+    bad = PeakHistory(2, 9, t, peaks[1].pseudorange_m + p @ np.asarray(los[2].u_ned), None)
+    peaks = [PeakHistory(q.prn, q.peak_id, q.t_s, q.pseudorange_m) for q in peaks] + [bad]
+    v = {(x.prn, x.peak_id): x for x in identify_peaks(peaks, los, imu)}
+    assert v[(2, 9)].adversarial or not v[(2, 9)].decided
+    assert not v[(2, 0)].adversarial
+
+
+def test_paper_test_threshold():
+    rng = np.random.default_rng(7)
+    t, p = seeded_maneuver(rng)
+    imu = imu_track(rng, t, p)
+    gps_true = GpsTrack(t, p[:, 0] + 100, p[:, 1] - 50, p[:, 2])
+    assert not paper_test(imu, gps_true).adversarial
+    hover = np.zeros_like(t)                   # a static spoofer keeps the fix at the start
+    r = paper_test(imu, GpsTrack(t, hover, hover, hover))
+    assert r.adversarial and r.mean_distance_m > 10
+
+
+def test_imu_track_rejects_hostile_input():
+    with pytest.raises(ValueError):
+        ImuTrack(np.array([0.0, 0.0]), np.zeros(2), np.zeros(2), np.zeros(2))
+    with pytest.raises(ValueError):
+        ImuTrack(np.array([0.0, 1.0]), np.array([0.0, np.nan]), np.zeros(2), np.zeros(2))
+
+
+if __name__ == "__main__":
+    for sp in (tuple(range(1, 9)), (1, 3, 5, 7), ()):
+        print(sp, "hits,total,false,legit,undecided =", rates(50, sp))

@@ -1,0 +1,74 @@
+import socket
+import struct
+
+import pytest
+
+from semperfi.flight.link import MAX_FRAME_BYTES, Codec, LinkError, receive, send
+
+KEY = b"0123456789abcdef0123456789abcdef"
+
+
+def pair():
+    return Codec(KEY), Codec(KEY)
+
+
+def test_round_trip_over_tcp_loopback():
+    srv = socket.create_server(("127.0.0.1", 0))
+    a = socket.create_connection(srv.getsockname())
+    b, _ = srv.accept()
+    tx, rx = pair()
+    track = {"maneuver_id": "m1", "t_s": [0.0, 1.0], "north_m": [0, 2], "east_m": [0, 1], "down_m": [0, 0]}
+    send(a, tx, "alarm", {"reason": "two peaks"})
+    send(a, tx, "maneuver_done", track)
+    assert receive(b, rx) == ("alarm", {"reason": "two peaks"})
+    assert receive(b, rx) == ("maneuver_done", track)
+    # silence: times out, does not stall
+    with pytest.raises(LinkError, match="timeout"):
+        receive(b, rx, timeout_s=0.2)
+    # truncated: peer closes mid-frame
+    a.sendall(struct.pack(">I", 100) + b"x" * 10)
+    a.close()
+    with pytest.raises(LinkError, match="truncated"):
+        receive(b, rx, timeout_s=1.0)
+    b.close()
+    srv.close()
+
+
+def test_rejects_tampered_unauthenticated_replayed_malformed_oversized():
+    tx, rx = pair()
+    frame = tx.encode("verdict", {"maneuver_id": "m1", "adversarial": True, "peaks": []})[4:]
+    tampered = frame.replace(b"true", b"fals")
+    with pytest.raises(LinkError, match="authentication"):
+        rx.decode(tampered)
+    with pytest.raises(LinkError, match="authentication"):
+        rx.decode(Codec(b"another key of 16+ bytes").encode("verdict", {})[4:])
+    assert rx.decode(frame)[0] == "verdict"
+    with pytest.raises(LinkError, match="replayed"):
+        rx.decode(frame)
+    with pytest.raises(LinkError, match="truncated"):
+        rx.decode(frame[:20])
+    with pytest.raises(LinkError, match="oversized"):
+        rx.decode(b"x" * (MAX_FRAME_BYTES + 1))
+    import hashlib
+    import hmac
+    body = b"{not json"
+    with pytest.raises(LinkError, match="malformed"):
+        rx.decode(hmac.new(KEY, body, hashlib.sha256).digest() + body)
+
+
+def test_rejects_stale_timestamp():
+    tx = Codec(KEY, clock=lambda: 1000.0)
+    rx = Codec(KEY, clock=lambda: 1100.0)
+    with pytest.raises(LinkError, match="timestamp"):
+        rx.decode(tx.encode("alarm", {})[4:])
+
+
+def test_oversized_length_prefix_rejected_without_reading():
+    srv = socket.create_server(("127.0.0.1", 0))
+    a = socket.create_connection(srv.getsockname())
+    b, _ = srv.accept()
+    a.sendall(struct.pack(">I", MAX_FRAME_BYTES + 1))
+    with pytest.raises(LinkError, match="oversized"):
+        receive(b, Codec(KEY), timeout_s=1.0)
+    for s in (a, b, srv):
+        s.close()
