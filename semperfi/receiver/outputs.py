@@ -43,7 +43,8 @@ COURSE_MIN_SPEED_M_S = 0.1        # below this the direction of a noisy velocity
 
 CSV_COLUMNS = ("t_rx_s", "gps_week", "gps_tow_s", "lat_deg", "lon_deg", "height_m", "x_m", "y_m", "z_m",
                "vx_m_s", "vy_m_s", "vz_m_s", "clock_bias_m", "clock_drift_m_s", "n_sats", "pdop", "hdop", "vdop",
-               "residual_rms_m", "prns", "state")
+               "residual_rms_m", "prns", "state", "raim", "excluded_prns", "test_statistic", "hpl_m",
+               "vpl_m")
 
 _GPX_HEADER = (
     '<?xml version="1.0" encoding="UTF-8"?>\n'
@@ -136,7 +137,9 @@ def _csv_row(fix: Fix, pos: np.ndarray, vel: np.ndarray) -> list[str]:
             *(f"{c:.4f}" for c in pos), *(f"{c:.4f}" for c in vel),
             f"{fix.clock_bias_m:.4f}", f"{fix.clock_drift_m_s:.4f}", str(int(fix.n_sats)),
             f"{fix.pdop:.3f}", f"{fix.hdop:.3f}", f"{fix.vdop:.3f}", f"{fix.residual_rms_m:.4f}",
-            " ".join(str(int(p)) for p in fix.prns), fix.state]
+            " ".join(str(int(p)) for p in fix.prns), fix.state, fix.raim,
+            " ".join(str(int(p)) for p in fix.excluded_prns), f"{fix.test_statistic:.4f}", f"{fix.hpl_m:.3f}",
+            f"{fix.vpl_m:.3f}"]
 
 
 def horizontal_velocity(fix: Fix) -> tuple[float, float]:
