@@ -38,6 +38,7 @@ class SigmaModel:
 class IntegrityConfig:
     pfa: float = 1e-5                # false-alarm probability per fix
     pmd: float = 1e-3                # missed-detection probability for the protection levels
+    exclude: bool = True             # False: detection only (status pass | fail | unverifiable)
     sigma: SigmaModel = SigmaModel()
 
 
@@ -135,7 +136,7 @@ def fde(h_enu, residual_m, sigma, config: IntegrityConfig = IntegrityConfig()) -
     excluded: list[int] = []
     while True:
         test = chi2_test(h[use], y[use], s[use], config.pfa)
-        if test.dof < 1 or test.passed or use.sum() - 1 - n_state < 1:
+        if test.dof < 1 or test.passed or not config.exclude or use.sum() - 1 - n_state < 1:
             break
         idx = np.flatnonzero(use)
         worst = idx[int(np.argmax(np.abs(normalized_residuals(h[use], y[use], s[use]))))]
