@@ -108,3 +108,19 @@ def test_solve_excludes_the_faulty_prn_and_lands_on_the_truth(scene):
     err = np.linalg.norm(fix.pos_ecef_m - truth)
     assert fix.raim == "excluded" and fix.excluded_prns == (bad,) and bad not in fix.prns, (fix.raim, fix.excluded_prns)
     assert err < 5.0, f"after excluding PRN {bad}: {err:.2f} m from the truth"
+
+
+def test_clean_simulated_recording_passes_raim_with_realistic_protection_levels(tmp_path, brdc_path):
+    from test_receiver import enu_errors, read_fixes, receive, simulate
+    simulate(tmp_path / "a.bin", f'constellation.rinex="{brdc_path}"', 'time.start="2022-01-01T00:00:27"',
+             duration=16.0)
+    receive(tmp_path / "a.bin", tmp_path / "out", str(brdc_path))
+    fixes = read_fixes(tmp_path / "out")
+    assert fixes, "no fix"
+    raim = [f["raim"] for f in fixes]
+    passed = sum(r == "pass" for r in raim) / len(raim)
+    hpl = np.array([float(f["hpl_m"]) for f in fixes])
+    horizontal = np.hypot(*enu_errors(fixes)[:, :2].T)
+    assert passed >= 0.95, f"{passed:.1%} of {len(fixes)} clean fixes pass RAIM: {sorted(set(raim))}"
+    assert np.all((hpl > 1.0) & (hpl < 100.0)), f"HPL {hpl.min():.1f}..{hpl.max():.1f} m"
+    assert np.all(horizontal <= hpl), f"error {horizontal.max():.1f} m exceeds HPL"

@@ -184,7 +184,7 @@ def _with_raim(observations, fix: Fix, sats: "_Satellites", model: "_Model", cfg
     lat, lon = np.radians(fix.lat_deg), np.radians(fix.lon_deg)
     h = np.column_stack([-model.los[use] @ enu_rotation(lat, lon).T, np.ones(int(use.sum()))])
     cn0 = np.array([o.cn0_dbhz for o in observations], dtype=np.float64)[use]
-    sigma = integrity.sigma_m(cn0, model.elevation_rad[use], cfg.sigma) / np.sqrt(sats.weight[use])
+    sigma = integrity.sigma_m(cn0, model.elevation_rad[use], cfg.sigma)   # C/N0 is in here: not Observation.weight
     result = integrity.fde(h, model.residual_m[use], sigma, cfg)
     prns = sats.prn[use]
     return replace(fix, raim=result.status, excluded_prns=tuple(int(prns[i]) for i in result.excluded),
