@@ -4,7 +4,7 @@ Pure functions on the linearised measurement model at a solution: `h_enu` (n, 4)
 (or pre-fit at the solution, the same thing after projection) pseudorange residuals and each range's expected sigma.
 
 Sigma model (explicit, `SigmaModel`): variance = DLL thermal noise (coherent early-minus-late, Kaplan & Hegarty
-eq. 5.73-ish: sigma^2 [chip^2] = B_L d / (2 C/N0) * (1 + 2 / (T C/N0 (2 - d)))) reduced by carrier smoothing over
+coherent EML: sigma^2 [chip^2] = B_L d / (2 C/N0) * (1 + 2 / (T C/N0 (2 - d)))) reduced by carrier smoothing over
 tau seconds (the DLL output decorrelates in ~1/(4 B_L): averaging keeps a fraction ~1/(4 B_L tau), capped at 1),
 plus a floor for orbit/clock/residual atmosphere: floor_m^2 + (atmosphere_m / sin el)^2.
 
