@@ -11,6 +11,7 @@ from semperfi.gps.constants import L1_WAVELENGTH_M, OMEGA_EARTH_RAD_S, SPEED_OF_
 from semperfi.gps.ephemeris import satellite_clock, satellite_position, stack_ephemerides
 from semperfi.gps.geometry import geodetic_to_ecef
 from semperfi.gps.time import GpsTime
+from semperfi.receiver.integrity import IntegrityConfig
 from semperfi.receiver.pvt import residual_check, solve
 from semperfi.receiver.types import Observation
 from semperfi.sim.constellation import DEFAULT_IONO, build_constellation, synthesize
@@ -180,7 +181,8 @@ def test_residual_check_sees_a_faulty_satellite(synth, boston):
     obs, el_deg = observe(synth, boston, START.tow_s + 40.0, DEFAULT_IONO, True)
     bad = max((o for o in obs if el_deg[o.prn] > 5.0), key=lambda o: el_deg[o.prn])
     faulty = [replace(o, pseudorange_m=o.pseudorange_m + 60.0) if o is bad else o for o in obs]
-    fix = solve(faulty, T_RX_S, START.week, DEFAULT_IONO)
+    fix = solve(faulty, T_RX_S, START.week, DEFAULT_IONO, raim=IntegrityConfig(exclude=False))
+    assert fix.raim == "fail", fix.raim
     res = residual_check(fix, faulty, DEFAULT_IONO)
     assert set(res) == {o.prn for o in obs}
     used = np.array([res[p] for p in fix.prns])

@@ -12,6 +12,7 @@ from ..gps.time import GpsTime, wrap_week_s
 from .acquisition import Caf, DopplerGrid, acquire, is_cross_correlation
 from .navigation import AssistedNav, NavDecoder
 from .pvt import solve
+from .integrity import IntegrityConfig, SigmaModel
 from .tracking import NEXT_SAMPLE, Channel, LoopConfig, initial_state
 from .types import Fix, Observation
 
@@ -259,6 +260,14 @@ class Receiver:
         ch.hatch = (smoothed, cycles, n)
         return smoothed
 
+    def _raim_config(self) -> IntegrityConfig:
+        i, t = self.cfg.get("integrity", {}), self.cfg["tracking"]
+        sigma = SigmaModel(dll_bw_hz=t["dll_bw_hz"], spacing_chips=t["spacing_chips"],
+                           integration_s=i.get("integration_s", 0.001), smoothing_s=self.cfg["pvt"]["smoothing_s"],
+                           floor_m=i.get("floor_m", 0.5), atmosphere_m=i.get("atmosphere_m", 0.5))
+        return IntegrityConfig(pfa=i.get("pfa", 1e-5), pmd=i.get("pmd", 1e-3), exclude=i.get("exclude", True),
+                               sigma=sigma)
+
     def _fix_at(self, sample: float) -> None:
         raw = self.observations_at(sample)
         trusted = [r for r in raw if r[0] not in self.excluded_prns]
@@ -274,9 +283,13 @@ class Receiver:
                for prn, t_sv, dop, cn0, eph, ch in raw if np.isfinite(cn0)]
         p = self.cfg["pvt"]
         fix = solve(obs, sample / self.fs_hz, self._week, (self.iono or FALLBACK_IONO) if p["ionosphere"] else None,
-                    troposphere=p["troposphere"], prior=self.last_fix, elevation_mask_deg=p["elevation_mask_deg"])
+                    troposphere=p["troposphere"], prior=self.last_fix, elevation_mask_deg=p["elevation_mask_deg"],
+                    raim=self._raim_config())
         if fix is None:
             return
+        if fix.excluded_prns:
+            self._emit("raim_exclusion", fix.t_rx_s, prns=list(fix.excluded_prns), raim=fix.raim,
+                       test_statistic=fix.test_statistic, n_sats=fix.n_sats)
         self.last_fix = fix
         self.stats.n_fixes += 1
         if self.stats.first_fix_t_rx_s is None:

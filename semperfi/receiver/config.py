@@ -28,6 +28,14 @@ DEFAULTS: dict = {
         "troposphere": True,
         "smoothing_s": 20.0,        # carrier smoothing (Hatch filter) of pseudoranges; 0 = off
     },
+    "integrity": {                  # RAIM (receiver/integrity.py)
+        "pfa": 1e-5,                # false-alarm probability of the residual test, per fix
+        "pmd": 1e-3,                # missed-detection probability for the protection levels
+        "exclude": True,            # fault exclusion (else detection only)
+        "integration_s": 0.001,     # DLL coherent integration in the code-noise model
+        "floor_m": 0.5,             # orbit/clock/receiver error floor (1 sigma)
+        "atmosphere_m": 0.5,        # residual atmosphere at zenith (1 sigma), / sin(elevation)
+    },
     "output": {
         "formats": ["csv", "nmea", "gpx", "geojson"],
     },

@@ -35,6 +35,7 @@ from ..gps.constants import SECONDS_PER_WEEK
 from ..gps.geometry import enu_rotation
 from ..gps.time import GPS_EPOCH
 from .types import Fix
+from .integrity import RAIM_STATES
 
 DEFAULT_LEAP_S = 18               # GPS - UTC since 2017-01-01; the receiver passes the broadcast value once decoded
 FORMATS = ("csv", "nmea", "gpx", "geojson")
@@ -43,7 +44,8 @@ COURSE_MIN_SPEED_M_S = 0.1        # below this the direction of a noisy velocity
 
 CSV_COLUMNS = ("t_rx_s", "gps_week", "gps_tow_s", "lat_deg", "lon_deg", "height_m", "x_m", "y_m", "z_m",
                "vx_m_s", "vy_m_s", "vz_m_s", "clock_bias_m", "clock_drift_m_s", "n_sats", "pdop", "hdop", "vdop",
-               "residual_rms_m", "prns", "state")
+               "residual_rms_m", "prns", "state", "raim", "excluded_prns", "test_statistic", "hpl_m",
+               "vpl_m")
 
 _GPX_HEADER = (
     '<?xml version="1.0" encoding="UTF-8"?>\n'
@@ -96,7 +98,8 @@ def _check_fix(fix: Fix) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"expected a Fix, got {type(fix).__name__}")
     where = f"fix at t_rx_s={fix.t_rx_s!r}"
     scalars = {f.name: getattr(fix, f.name) for f in dataclasses.fields(Fix)
-               if f.name not in ("pos_ecef_m", "vel_ecef_m_s", "prns", "state")}
+               if f.name not in ("pos_ecef_m", "vel_ecef_m_s", "prns", "state", "raim", "excluded_prns",
+                                 "test_statistic", "hpl_m", "vpl_m")}   # RAIM values are nan without redundancy
     for name, value in scalars.items():
         try:
             finite = math.isfinite(value)
@@ -120,6 +123,8 @@ def _check_fix(fix: Fix) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"{where}: gps_tow_s {fix.gps_tow_s!r} out of [0, {SECONDS_PER_WEEK})")
     if not float(fix.n_sats).is_integer() or fix.n_sats < 0:
         raise ValueError(f"{where}: n_sats {fix.n_sats!r} is not a non-negative integer")
+    if fix.raim not in RAIM_STATES:
+        raise ValueError(f"{where}: raim {fix.raim!r} is not one of {RAIM_STATES}")
     if not all(isinstance(p, (int, np.integer)) and not isinstance(p, bool) for p in fix.prns):
         raise ValueError(f"{where}: prns {fix.prns!r} must be integers")
     if not isinstance(fix.state, str) or not fix.state or any(c in fix.state for c in ",\r\n\"<>&"):
@@ -136,7 +141,9 @@ def _csv_row(fix: Fix, pos: np.ndarray, vel: np.ndarray) -> list[str]:
             *(f"{c:.4f}" for c in pos), *(f"{c:.4f}" for c in vel),
             f"{fix.clock_bias_m:.4f}", f"{fix.clock_drift_m_s:.4f}", str(int(fix.n_sats)),
             f"{fix.pdop:.3f}", f"{fix.hdop:.3f}", f"{fix.vdop:.3f}", f"{fix.residual_rms_m:.4f}",
-            " ".join(str(int(p)) for p in fix.prns), fix.state]
+            " ".join(str(int(p)) for p in fix.prns), fix.state, fix.raim,
+            " ".join(str(int(p)) for p in fix.excluded_prns), f"{fix.test_statistic:.4f}", f"{fix.hpl_m:.3f}",
+            f"{fix.vpl_m:.3f}"]
 
 
 def horizontal_velocity(fix: Fix) -> tuple[float, float]:

@@ -14,7 +14,7 @@ Conventions: `Observation.pseudorange_m` = c (t_rx - t_sv) with t_rx the receive
 t_sv + P/c is the reception instant on the receiver clock; the fix's GPS time is that minus the clock bias.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -22,6 +22,7 @@ from ..gps.atmosphere import iono_delay_m, troposphere_delay_m
 from ..gps.constants import L1_WAVELENGTH_M, SECONDS_PER_WEEK, SPEED_OF_LIGHT_M_S
 from ..gps.ephemeris import IonoParams, satellite_clock, satellite_position_velocity, stack_ephemerides
 from ..gps.geometry import azimuth_elevation, ecef_to_geodetic, enu_rotation, rotate_earth
+from . import integrity
 from .types import Fix, Observation
 
 C = SPEED_OF_LIGHT_M_S
@@ -153,7 +154,45 @@ def _gps_time(week: int, tow_s: float) -> tuple[int, float]:
 
 
 def solve(observations: list[Observation], t_rx_s: float, gps_week: int, iono: IonoParams | None,
-          troposphere: bool = True, prior: Fix | None = None, elevation_mask_deg: float = 5.0) -> Fix | None:
+          troposphere: bool = True, prior: Fix | None = None, elevation_mask_deg: float = 5.0,
+          raim: integrity.IntegrityConfig = integrity.IntegrityConfig()) -> Fix | None:
+    """solve_once, then RAIM (integrity.fde) on the solution; excluded ranges are dropped and the fix solved again.
+
+    The Fix carries raim (pass | fail | excluded | unverifiable), excluded_prns, test_statistic, hpl_m, vpl_m.
+    """
+    observations = [o for o in observations
+                    if np.isfinite(o.pseudorange_m) and np.isfinite(o.t_sv_s) and o.weight > 0]
+    out = _solve_once(observations, t_rx_s, gps_week, iono, troposphere, prior, elevation_mask_deg)
+    if out is None:
+        return None
+    fix, result = _with_raim(observations, *out, raim)
+    if not result.excluded:
+        return fix
+    used = [o for o, u in zip(observations, out[2].use) if u]
+    bad = {used[i].prn for i in result.excluded}
+    again = _solve_once([o for o in observations if o.prn not in bad], t_rx_s, gps_week, iono, troposphere, prior,
+                        elevation_mask_deg)
+    if again is None:
+        return replace(fix, raim="fail")
+    fix2, result2 = _with_raim([o for o in observations if o.prn not in bad], *again, raim)
+    status = "excluded" if result2.status == "pass" else ("fail" if result2.status == "excluded" else result2.status)
+    return replace(fix2, raim=status, excluded_prns=tuple(sorted(bad | set(fix2.excluded_prns))))
+
+
+def _with_raim(observations, fix: Fix, sats: "_Satellites", model: "_Model", cfg: integrity.IntegrityConfig):
+    use = model.use
+    lat, lon = np.radians(fix.lat_deg), np.radians(fix.lon_deg)
+    h = np.column_stack([-model.los[use] @ enu_rotation(lat, lon).T, np.ones(int(use.sum()))])
+    cn0 = np.array([o.cn0_dbhz for o in observations], dtype=np.float64)[use]
+    sigma = integrity.sigma_m(cn0, model.elevation_rad[use], cfg.sigma)   # C/N0 is in here: not Observation.weight
+    result = integrity.fde(h, model.residual_m[use], sigma, cfg)
+    prns = sats.prn[use]
+    return replace(fix, raim=result.status, excluded_prns=tuple(int(prns[i]) for i in result.excluded),
+                   test_statistic=result.test.statistic, hpl_m=result.hpl_m, vpl_m=result.vpl_m), result
+
+
+def _solve_once(observations: list[Observation], t_rx_s: float, gps_week: int, iono: IonoParams | None,
+                troposphere: bool = True, prior: Fix | None = None, elevation_mask_deg: float = 5.0):
     """Position, velocity and clock of the receiver at one reception instant, or None when there is no sound fix.
 
     t_rx_s (seconds since the first sample) is carried into the Fix; the GPS time comes from the observations.
@@ -186,7 +225,8 @@ def solve(observations: list[Observation], t_rx_s: float, gps_week: int, iono: I
         else:
             return None
         model = _evaluate(sats, x, bias_m, iono, troposphere, mask_rad, True)
-        return _fix(sats, model, x, bias_m, t_rx_s, gps_week)
+        fix = _fix(sats, model, x, bias_m, t_rx_s, gps_week)
+        return None if fix is None else (fix, sats, model)
 
 
 def _fix(sats: _Satellites, model: _Model, pos_m, bias_m: float, t_rx_s: float, gps_week: int) -> Fix | None:

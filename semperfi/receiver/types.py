@@ -39,3 +39,8 @@ class Fix:
     vdop: float
     residual_rms_m: float
     state: str = "nominal"    # nominal | spoofing_detected | recovering | recovered (the defence sets the others)
+    raim: str = "unverifiable"  # pass | fail | excluded | unverifiable (integrity.py); only pass/excluded are trusted
+    excluded_prns: tuple[int, ...] = ()   # ranges RAIM excluded from this fix
+    test_statistic: float = float("nan")  # weighted residual sum of squares (chi-square distributed when clean)
+    hpl_m: float = float("nan")           # horizontal / vertical protection levels (nan without redundancy)
+    vpl_m: float = float("nan")

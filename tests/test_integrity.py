@@ -1,0 +1,126 @@
+"""RAIM: the chi-square residual test, fault detection and exclusion, and protection levels, on real geometry."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from semperfi.gps.geometry import enu_rotation
+from semperfi.receiver import integrity
+from semperfi.receiver.pvt import _solve_once, solve
+from semperfi.sim.constellation import DEFAULT_IONO
+
+from test_pvt import BOSTON, START, ecef, observe, synth  # noqa: F401  (fixture)
+
+PFA = 0.01                  # high enough to count false alarms in a few thousand trials
+CFG = integrity.IntegrityConfig(pfa=PFA, pmd=1e-3)
+CN0_DBHZ = 45.0
+
+
+@pytest.fixture(scope="module")
+def scene(synth):
+    """Noise-free observations, the linearised geometry (ENU) and each range's sigma at Boston."""
+    truth = ecef(*BOSTON)
+    obs, _ = observe(synth, truth, START.tow_s, DEFAULT_IONO, True, min_el_deg=5.0)
+    fix, sats, model = _solve_once(obs, 1.0, START.week, DEFAULT_IONO)
+    use = model.use
+    rot = enu_rotation(np.radians(fix.lat_deg), np.radians(fix.lon_deg))
+    h = np.column_stack([-model.los[use] @ rot.T, np.ones(int(use.sum()))])
+    sigma = integrity.sigma_m(np.full(int(use.sum()), CN0_DBHZ), model.elevation_rad[use], CFG.sigma)
+    obs = [o for o, u in zip(obs, use) if u]
+    return truth, obs, h, sigma, rot
+
+
+def test_sigma_model_falls_with_cn0_and_has_a_floor():
+    s = integrity.sigma_m([30.0, 45.0, 55.0], np.radians([90.0, 90.0, 90.0]))
+    assert s[0] > s[1] > s[2] >= np.hypot(0.5, 0.5), s
+    raw = integrity.sigma_m([35.0], [np.pi / 2], integrity.SigmaModel(smoothing_s=0, floor_m=0, atmosphere_m=0))
+    assert 1.0 < raw[0] < 6.0, f"unsmoothed DLL sigma at 35 dB-Hz, 0.5 chip, 2 Hz: {raw[0]:.2f} m"
+
+
+def test_clean_ranges_pass_at_the_false_alarm_rate(scene):
+    _, _, h, sigma, _ = scene
+    rng = np.random.default_rng(1)
+    trials = 4000
+    alarms = sum(integrity.fde(h, rng.normal(0, sigma), sigma, CFG).status != "pass" for _ in range(trials))
+    lo, hi = stats.binom.ppf([1e-4, 1 - 1e-4], trials, PFA)
+    assert lo <= alarms <= hi, f"{alarms} alarms in {trials} clean trials, expected {PFA * trials:.0f} [{lo}, {hi}]"
+
+
+def test_protection_levels_bound_the_clean_error(scene):
+    _, _, h, sigma, _ = scene
+    hpl, vpl = integrity.protection_levels(h, sigma, CFG.pfa, CFG.pmd)
+    w = 1 / sigma ** 2
+    k = np.linalg.solve(h.T @ (h * w[:, None]), h.T * w)
+    err = k @ np.random.default_rng(2).normal(0, sigma[:, None], (len(sigma), 5000))
+    h_ok = np.mean(np.hypot(err[0], err[1]) <= hpl)
+    v_ok = np.mean(np.abs(err[2]) <= vpl)
+    assert h_ok >= 0.99 and v_ok >= 0.99, f"HPL {hpl:.1f} m bounds {h_ok:.4f}, VPL {vpl:.1f} m bounds {v_ok:.4f}"
+    assert 1.0 < hpl < 50.0, f"HPL {hpl:.1f} m with {len(sigma)} satellites at {CN0_DBHZ} dB-Hz"
+
+
+@pytest.mark.parametrize("bias_m", [100.0, 300.0])
+def test_one_biased_range_is_detected_and_excluded(scene, bias_m):
+    _, _, h, sigma, _ = scene
+    rng = np.random.default_rng(3)
+    right = 0
+    for trial in range(200):
+        y = rng.normal(0, sigma)
+        bad = trial % len(sigma)
+        y[bad] += bias_m
+        r = integrity.fde(h, y, sigma, CFG)
+        right += r.status == "excluded" and r.excluded == (bad,)
+    assert right >= 195, f"{right}/200 fixes excluded the right range biased by {bias_m} m"
+
+
+def test_two_ranges_pulled_together_are_detected(scene):
+    _, _, h, sigma, _ = scene
+    rng = np.random.default_rng(4)
+    detected = 0
+    for trial in range(200):
+        y = rng.normal(0, sigma)
+        a, b = trial % len(sigma), (trial + 1) % len(sigma)
+        y[[a, b]] += 100.0
+        r = integrity.fde(h, y, sigma, CFG)
+        detected += r.status == "fail" or (r.status == "excluded" and {a, b} <= set(r.excluded))
+    assert detected >= 190, f"two ranges biased by 100 m: {detected}/200 detected (failed or both excluded)"
+
+
+def test_four_satellites_are_unverifiable(scene):
+    truth, obs, _, _, _ = scene
+    fix = solve(obs[:4], 1.0, START.week, DEFAULT_IONO, raim=CFG)
+    assert fix is not None and fix.raim == "unverifiable" and not integrity.trusted(fix.raim), fix.raim
+    assert np.isnan(fix.hpl_m)
+
+
+def test_solve_excludes_the_faulty_prn_and_lands_on_the_truth(scene):
+    truth, obs, _, sigma, _ = scene
+    rng = np.random.default_rng(5)
+    noisy = [replace(o, pseudorange_m=o.pseudorange_m + rng.normal(0, s)) for o, s in zip(obs, sigma)]
+    clean = solve(noisy, 1.0, START.week, DEFAULT_IONO, raim=CFG)
+    assert clean.raim == "pass" and integrity.trusted(clean.raim), clean.raim
+    err = np.linalg.norm(clean.pos_ecef_m - truth)
+    assert err < clean.hpl_m, f"clean error {err:.2f} m, HPL {clean.hpl_m:.2f} m"
+    bad = noisy[2].prn
+    faulty = [replace(o, pseudorange_m=o.pseudorange_m + 300.0) if o.prn == bad else o for o in noisy]
+    fix = solve(faulty, 1.0, START.week, DEFAULT_IONO, raim=CFG)
+    err = np.linalg.norm(fix.pos_ecef_m - truth)
+    assert fix.raim == "excluded" and fix.excluded_prns == (bad,) and bad not in fix.prns, (fix.raim, fix.excluded_prns)
+    assert err < 5.0, f"after excluding PRN {bad}: {err:.2f} m from the truth"
+
+
+def test_clean_simulated_recording_passes_raim_with_realistic_protection_levels(tmp_path, brdc_path):
+    from test_receiver import enu_errors, read_fixes, receive, simulate
+    simulate(tmp_path / "a.bin", f'constellation.rinex="{brdc_path}"', 'time.start="2022-01-01T00:00:27"',
+             duration=16.0)
+    receive(tmp_path / "a.bin", tmp_path / "out", str(brdc_path))
+    fixes = read_fixes(tmp_path / "out")
+    assert fixes, "no fix"
+    raim = [f["raim"] for f in fixes]
+    passed = sum(r == "pass" for r in raim) / len(raim)
+    hpl = np.array([float(f["hpl_m"]) for f in fixes])
+    horizontal = np.hypot(*enu_errors(fixes)[:, :2].T)
+    assert passed >= 0.95, f"{passed:.1%} of {len(fixes)} clean fixes pass RAIM: {sorted(set(raim))}"
+    assert np.all((hpl > 1.0) & (hpl < 100.0)), f"HPL {hpl.min():.1f}..{hpl.max():.1f} m"
+    assert np.all(horizontal <= hpl), f"error {horizontal.max():.1f} m exceeds HPL"
