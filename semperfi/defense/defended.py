@@ -8,6 +8,7 @@ import numpy as np
 
 from ..gps.constants import CA_CHIP_RATE_HZ, L1_HZ
 from ..receiver.chain import Receiver
+from ..receiver.integrity import trusted
 from ..receiver.types import Fix
 from .detector import chips_apart
 from .guard import SpoofGuard
@@ -62,19 +63,18 @@ class DefendedReceiver:
             self.inner.drop_channel(prn, "tracking the peak under cancellation")
 
     def _label(self, fix: Fix) -> None:
-        """What a fix is built on. Before any alarm it is nominal unless its ranges disagree (integrity test failed:
-        unverified). After an alarm it is spoofing_detected (detect only), then recovering until every PRN it uses is
+        """What a fix is built on. Before any alarm it is nominal when its ranges pass the integrity test (RAIM), else
+        unverified (they disagree, or there are too few to check). After an alarm it is spoofing_detected (detect only), then recovering until every PRN it uses is
         resolved (verified clean after cancellation, or examined and found to hold one signal), and its ranges pass
         the integrity test with redundancy to spare: a mix of legitimate and spoofed ranges, or a fix that cannot be
         checked, is never recovered."""
         g = self.guard
-        integrity = getattr(fix, "raim", "pass")
         if g.alarm_t_s is None:
-            state = "unverified" if integrity == "fail" else "nominal"
+            state = "nominal" if trusted(fix.raim) else "unverified"
         elif g.d["mode"] != "full" or not g.cancel_started:
             state = "spoofing_detected"
         else:
-            checked = (integrity in ("pass", "excluded") and fix.n_sats - 4 >= g.d["min_redundancy"]
+            checked = (trusted(fix.raim) and fix.n_sats - 4 >= g.d["min_redundancy"]
                        and fix.residual_rms_m < MAX_RECOVERED_RESIDUAL_M)
             state = "recovered" if checked and all(g.resolved(p) for p in fix.prns) else "recovering"
         if state == "recovered" and self.first_recovered_t_s is None:

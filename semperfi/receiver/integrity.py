@@ -15,6 +15,8 @@ sqrt of the non-centrality giving missed detection pmd at the threshold, HPL = m
 
 from dataclasses import dataclass
 
+from functools import lru_cache
+
 import numpy as np
 from scipy import optimize, stats
 
@@ -103,6 +105,7 @@ def normalized_residuals(h_enu, residual_m, sigma) -> np.ndarray:
     return (p @ y) / np.sqrt(np.maximum(var_r, 1e-12 * s ** 2))
 
 
+@lru_cache(maxsize=512)   # a root search on the non-central chi-square: once per (dof, pfa, pmd)
 def pbias(dof: int, pfa: float, pmd: float) -> float:
     """sqrt of the non-centrality at which a chi2(dof) test with false alarm pfa misses with probability pmd."""
     thr = stats.chi2.isf(pfa, dof)
