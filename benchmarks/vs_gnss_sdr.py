@@ -7,6 +7,13 @@ unassisted; horizontal error (mean, 95th percentile) against the truth, time to 
 of our wall time to GNSS-SDR's. Needs gnss-sdr (scripts/crosscheck-gnss-sdr installs it).
 """
 
+# Where the time goes (cProfile, `semperfi run` on 40 s at 4 MSa/s ishort, 9 satellites, loaded 2-core machine,
+# before issue 10): 17.3 s CPU / 23.8 s wall; tracking.track_kernel 14.2 s (60 %: ~6.7 ns per sample per channel,
+# the per-sample float->int code/carrier lookups and the carrier wrap branch), acquisition.acquire 6.2 s cumulative
+# (26 %: Doppler wipe-off + FFTs, scipy c2c 1.8 s), Python per chunk (Channel.process, nav, lock) < 1.5 s.
+# Correlator micro-benchmark after the fixed-point/float32 kernel: 4.3 ns per sample (from 6.7).
+
+
 import argparse
 import csv
 import sys
