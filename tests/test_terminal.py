@@ -1,7 +1,10 @@
 """What a person at a terminal sees: each command runs under a pseudo-terminal, draws its live table or progress
 bar, and exits 0 (issue 12: the suite never had a terminal, so `semperfi run` crashing on `rich` went unseen)."""
+import fcntl
 import os
 import pty
+import struct
+import termios
 import re
 import select
 import subprocess
@@ -17,6 +20,8 @@ TABLE_HEADER = "Doppler [Hz]"       # the live channel table's header
 def run_in_pty(args, cwd, timeout_s=300):
     """Run `python -m semperfi.cli ARGS` with stdin/stdout/stderr on a pseudo-terminal; (exit code, screen text)."""
     master, slave = pty.openpty()
+    # A fresh pty is 0x0; a person's terminal is not, and tqdm draws nothing in zero columns.
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 120, 0, 0))
     env = dict(os.environ, COLUMNS="120", LINES="40", TERM="xterm-256color")
     proc = subprocess.Popen([sys.executable, "-m", "semperfi.cli", *args], stdin=slave, stdout=slave,
                             stderr=slave, cwd=cwd, env=env, close_fds=True)
