@@ -218,9 +218,11 @@ def _sample_format(fmt, iq_swap: bool):
 
 def _receiver_config(path, sets) -> dict:
     from . import config
-    from .defense.config import DEFAULTS as DEFENSE
-    from .receiver.config import DEFAULTS as RECEIVER
-    return config.load({**RECEIVER, **DEFENSE}, path, sets)
+    from .defense.config import DEFAULTS as DEFENSE, DOMAINS as DEFENSE_DOMAINS
+    from .receiver.config import DEFAULTS as RECEIVER, DOMAINS as RECEIVER_DOMAINS
+    cfg = config.load({**RECEIVER, **DEFENSE}, path, sets)
+    config.check_domains(cfg, {**RECEIVER_DOMAINS, **DEFENSE_DOMAINS})
+    return cfg
 
 
 def _print_run_summary(summary) -> None:

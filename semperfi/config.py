@@ -85,3 +85,28 @@ def dumps_toml(cfg: dict) -> str:
 
     emit(cfg, "")
     return "\n".join(lines)
+
+
+def check_domains(cfg: dict, domains: dict) -> None:
+    """A ValueError naming the first key whose value lies outside its domain.
+
+    A domain is (low, high) inclusive; ("one", *choices) for a string; ("each", low, high) or ("each", *choices)
+    for a list, applied to every element."""
+    for name, domain in domains.items():
+        node: Any = cfg
+        for part in name.split("."):
+            node = node[part]
+        values, rule = ([node], domain)
+        if domain[0] in ("one", "each"):
+            values = list(node) if domain[0] == "each" else [node]
+            rule = domain[1:]
+        for value in values:
+            numeric = len(rule) == 2 and all(isinstance(r, (int, float)) for r in rule)
+            if numeric:
+                ok = isinstance(value, (int, float)) and not isinstance(value, bool) and rule[0] <= value <= rule[1]
+                want = f"between {rule[0]:g} and {rule[1]:g}"
+            else:
+                ok = value in rule
+                want = "one of " + ", ".join(map(str, rule))
+            if not ok:
+                raise ValueError(f"configuration key '{name}' must be {want}, got {value!r}")

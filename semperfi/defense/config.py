@@ -17,3 +17,16 @@ DEFAULTS: dict = {
                                     # both detect and exclude one bad range
     },
 }
+
+# Each key's domain (see receiver/config.py): (low, high) inclusive, or choices.
+DOMAINS: dict = {
+    "defense.mode": ("one", "off", "detect", "full"),
+    "defense.examine_every_s": (0.01, 3600.0),
+    "defense.startup_s": (0.0, 60.0),
+    "defense.full_search_every_s": (0.1, 3600.0),
+    "defense.separation_ns": (0.0, 1e6),
+    "defense.confirmations": (1, 100),
+    "defense.max_iterations": (1, 16),
+    "defense.max_tracks": (1, 256),
+    "defense.verify_after_s": (0.0, 3600.0),
+}

@@ -64,12 +64,13 @@ def run_demo(out_dir: str | Path, duration_s: float, sets: list[str], progress: 
            f"{r['lat_deg']:.4f}, {r['lon_deg']:.4f}; attacker claims 1 km east at +6 dB on PRNs "
            f"{' '.join(map(str, summary.spoofed_prns))}")
     receiver_cfg = config.load({**RECEIVER, **DEFENSE}, None, [])
-    run_file(data, None, None, None, receiver_cfg, out_dir / "conventional")
+    run_file(data, None, None, None, receiver_cfg, out_dir / "conventional", live=progress)
     spoofed = _horizontal_errors_m(out_dir / "conventional" / "fixes.csv", r["lat_deg"], r["lon_deg"], r["height_m"])
     yield (f"conventional receiver: {spoofed.size} fixes, {np.mean(spoofed):.0f} m from the truth (spoofed)"
            if spoofed.size else "conventional receiver: no fix (the file is too short to decode the ephemerides)")
     defended_cfg = config.load({**RECEIVER, **DEFENSE}, None, ['defense.mode="full"'])
-    run_file(data, None, None, None, defended_cfg, out_dir / "semperfi", receiver_factory=DefendedReceiver)
+    run_file(data, None, None, None, defended_cfg, out_dir / "semperfi", live=progress,
+             receiver_factory=DefendedReceiver)
     events = [json.loads(line) for line in open(out_dir / "semperfi" / "events.jsonl")]
     alarm = next((e for e in events if e["event"] == "spoofing_alarm"), None)
     recovered = next((e for e in events if e["event"] == "recovered"), None)

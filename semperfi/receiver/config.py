@@ -40,3 +40,27 @@ DEFAULTS: dict = {
         "formats": ["csv", "nmea", "gpx", "geojson"],
     },
 }
+
+# Each key's domain, checked after every override: (low, high) inclusive, or a tuple of choices for lists/strings.
+DOMAINS: dict = {
+    "acquisition.prns": ("each", 1, 32),
+    "acquisition.doppler_max_hz": (100.0, 50000.0),
+    "acquisition.doppler_step_hz": (0.0, 5000.0),
+    "acquisition.coherent_ms": (1, 20),
+    "acquisition.noncoherent": (1, 1000),
+    "acquisition.pfa": (1e-12, 0.5),
+    "acquisition.max_peaks": (1, 64),
+    "acquisition.reacquire_s": (0.1, 3600.0),
+    "acquisition.cross_correlation_db": (0.0, 60.0),
+    "tracking.channels": (1, 64),
+    "tracking.pll_bw_hz": (0.5, 100.0),
+    "tracking.fll_bw_hz": (0.5, 100.0),
+    "tracking.dll_bw_hz": (0.05, 20.0),
+    "tracking.spacing_chips": (0.05, 1.0),
+    "tracking.pull_in_ms": (0, 10000),
+    "tracking.min_cn0_dbhz": (0.0, 60.0),
+    "pvt.rate_hz": (0.01, 100.0),
+    "pvt.elevation_mask_deg": (-10.0, 90.0),
+    "pvt.smoothing_s": (0.0, 1000.0),
+    "output.formats": ("each", "csv", "nmea", "gpx", "geojson"),
+}
