@@ -101,7 +101,8 @@ def check_domains(cfg: dict, domains: dict) -> None:
             values = list(node) if domain[0] == "each" else [node]
             rule = domain[1:]
         for value in values:
-            numeric = len(rule) == 2 and all(isinstance(r, (int, float)) for r in rule)
+            numeric = (domain[0] != "one" and len(rule) == 2
+                       and all(isinstance(r, (int, float)) and not isinstance(r, bool) for r in rule))
             if numeric:
                 ok = isinstance(value, (int, float)) and not isinstance(value, bool) and rule[0] <= value <= rule[1]
                 want = f"between {rule[0]:g} and {rule[1]:g}"

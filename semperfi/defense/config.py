@@ -29,4 +29,5 @@ DOMAINS: dict = {
     "defense.max_iterations": (1, 16),
     "defense.max_tracks": (1, 256),
     "defense.verify_after_s": (0.0, 3600.0),
+    "defense.min_redundancy": (1, 28),
 }

@@ -62,5 +62,11 @@ DOMAINS: dict = {
     "pvt.rate_hz": (0.01, 100.0),
     "pvt.elevation_mask_deg": (-10.0, 90.0),
     "pvt.smoothing_s": (0.0, 1000.0),
+    "integrity.pfa": (1e-12, 0.5),
+    "integrity.pmd": (1e-12, 0.5),
+    "integrity.exclude": ("one", True, False),
+    "integrity.integration_s": (0.001, 0.02),
+    "integrity.floor_m": (0.0, 1000.0),
+    "integrity.atmosphere_m": (0.0, 1000.0),
     "output.formats": ("each", "csv", "nmea", "gpx", "geojson"),
 }
