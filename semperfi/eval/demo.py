@@ -18,7 +18,7 @@ from ..gps.geometry import enu_rotation, geodetic_to_ecef
 from ..iq import open_iq
 from ..receiver.acquisition import DopplerGrid, acquire
 from ..receiver.config import DEFAULTS as RECEIVER
-from ..receiver.plots import plot_cafs
+from ..receiver.plots import plot_before_after
 from ..receiver.run import run_file
 from ..sim.run import simulate_to_file
 from ..sim.scenario import load_scenario
@@ -46,12 +46,20 @@ def _before_after_plot(path: Path, cfg: dict, out_png: Path) -> None:
     guard = SpoofGuard(cfg, fs, reader.if_hz)
     cleaned = np.concatenate([guard.push(raw[i:i + int(0.1 * fs)]) for i in range(0, raw.size, int(0.1 * fs))])
     at = int(2.0 * fs)
-    prns = sorted(guard.cancel_started)[:4]
+    marks = {}
+    for prn in sorted(guard.cancel_started):
+        track = next((st.tracks[prn] for st in guard.canceller.stages if prn in st.tracks), None)
+        around = track.channel.epoch_around(at) if track is not None else None
+        if around is not None:   # where the receiver had the spoofer, and the legitimate signal beside it
+            spoof = (around[1] * 1023.0) % 1023.0
+            legit = None if track.legit_offset_chips is None else (spoof + track.legit_offset_chips) % 1023.0
+            marks[prn] = (spoof, legit)
+    prns = sorted(marks, key=lambda p: abs(marks[p][1] - marks[p][0]) if marks[p][1] is not None else 99)[:4]
     grid = DopplerGrid(0.0, 6000.0, 333.0)
     before = acquire(raw[at:at + int(0.01 * fs)], fs, prns, grid, coherent_ms=2, noncoherent=5)
     after = acquire(cleaned[at:at + int(0.01 * fs)], fs, prns, grid, coherent_ms=2, noncoherent=5)
-    plot_cafs([before[p] for p in prns] + [after[p] for p in prns], out_png,
-              "acquisition before (top row) and after (bottom row) cancellation")
+    plot_before_after([before[p] for p in prns], [after[p] for p in prns], marks, out_png,
+                      "acquisition before (top) and after (bottom) cancellation, 2 s in")
 
 
 def run_demo(out_dir: str | Path, duration_s: float, sets: list[str], progress: bool = False) -> Iterator[str]:
