@@ -113,13 +113,18 @@ def _signal(prn: int, code_phase_chips: float, doppler_hz: float, t_s: np.ndarra
     return ca_code(prn)[chips] * np.exp(2j * np.pi * doppler_hz * t_s)
 
 
+TWO_PATH_MARGIN_CHIPS = 0.1
+
+
 def hidden_pair(samples: np.ndarray, fs_hz: float, if_hz: float, main: Peak, cfg: DetectorConfig,
                 sensitive: bool = False) -> PeakPair | None:
     """A second signal under the main peak, more than the separation away (None when there is none)."""
     n_blocks = int(samples.size // round(fs_hz * 1e-3))
     fit = two_path_test(samples, fs_hz, main.prn, main.code_phase_chips, main.doppler_hz, if_hz, n_blocks=n_blocks,
                         pfa=cfg.sensitive_two_path_pfa if sensitive else cfg.two_path_pfa)
-    separation = cfg.sensitive_separation_chips if sensitive else cfg.separation_chips
+    # the fit's 0.05-chip delay grid and the noise can place a 500 ns echo a little further: a margin of
+    # TWO_PATH_MARGIN_CHIPS keeps such an echo from the alarm until the attack is known
+    separation = cfg.sensitive_separation_chips if sensitive else cfg.separation_chips + TWO_PATH_MARGIN_CHIPS
     if not fit.significant or fit.separation_chips <= separation or fit.power_ratio_db < cfg.two_path_min_ratio_db:
         return None
     # the two peaks' metrics, apportioned from the main peak's by the fitted power ratio
