@@ -276,7 +276,7 @@ def test_defense_options_are_checked(tmp_path):
     import subprocess
     import sys
     simulate(tmp_path / "s.bin", "constellation.max_satellites=4", duration=0.5)
-    for args, fragment in ((["--adversarial", "loudest"], "--adversarial"), (["--set", 'defense.mode="maybe"'], "--defense")):
+    for args, fragment in ((["--adversarial", "loudest"], "--adversarial"), (["--set", 'defense.mode="maybe"'], "defense.mode")):
         r = subprocess.run([sys.executable, "-m", "semperfi.cli", "run", str(tmp_path / "s.bin"), "--out",
                             str(tmp_path / "o"), *args], capture_output=True, text=True, timeout=300)
         assert r.returncode != 0 and fragment in r.stderr and "Traceback" not in r.stderr, r.stderr
