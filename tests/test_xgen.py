@@ -4,7 +4,8 @@ same GPS time (a synchronized attacker), mixed with our own calibrated noise. Ru
 import numpy as np
 import pytest
 
-from semperfi.eval.xgen import PLACES, Case, gps_sdr_sim_path, prepare, run_case
+from semperfi.defense.canceller import caf_amplitude
+from semperfi.eval.xgen import AMPLITUDE, OUTPUT_SCALE, PLACES, Case, gps_sdr_sim_path, prepare, run_case
 from semperfi.iq import open_iq
 from semperfi.receiver.acquisition import DopplerGrid, acquire
 
@@ -14,12 +15,24 @@ pytestmark = pytest.mark.skipif(gps_sdr_sim_path() is None,
 
 
 def test_the_mix_puts_gps_sdr_sim_satellites_at_the_c_n0_asked_for(tmp_path, brdc_path):
+    """gps-sdr-sim's per-satellite amplitude (read from its source: 250 with -p) measured on its noise-free scene
+    with the paper's eq. 10, and the mixer's noise measured in the mix: together they set C/N0."""
     case = Case(PLACES["boston"], 0.0, 0.0, duration_s=1.0, attacker=False, cn0_dbhz=45.0)
-    x = open_iq(prepare(case, brdc_path, tmp_path)).read(0, int(0.2 * case.fs_hz))
-    cafs = acquire(x, case.fs_hz, range(1, 33), DopplerGrid(0.0, 6000.0, 50.0), coherent_ms=10, noncoherent=20)
-    cn0 = [c.best.cn0_dbhz for c in cafs.values() if c.best is not None and c.best.metric > 100]
-    assert len(cn0) >= 6, f"{len(cn0)} satellites acquired"
-    assert abs(np.median(cn0) - 45.0) < 2.0, f"C/N0 of the acquired satellites: {np.round(cn0, 1)}"
+    mixed = prepare(case, brdc_path, tmp_path)
+    scene = next((tmp_path / "scenes").glob("boston-*.bin"))
+    n = int(0.2 * case.fs_hz)
+    clean = np.fromfile(scene, dtype=np.int16, count=2 * n).astype(np.float64).view(np.complex128)
+    cafs = acquire(clean[: int(0.01 * case.fs_hz)], case.fs_hz, range(1, 33), DopplerGrid(0.0, 6000.0, 100.0),
+                   coherent_ms=5, noncoherent=2)
+    found = sorted((c.best for c in cafs.values() if c.best is not None), key=lambda p: -p.metric)[:8]
+    assert len(found) >= 6, f"{len(found)} satellites in the scene"
+    amplitude = np.median([caf_amplitude(clean, case.fs_hz, 0.0, p.prn, p.code_phase_chips, p.doppler_hz)
+                           for p in found])
+    x = open_iq(mixed).read(0, n).astype(np.complex128) / OUTPUT_SCALE
+    sigma = float(np.std(np.concatenate([(x - clean).real, (x - clean).imag])))
+    cn0 = 10 * np.log10(amplitude ** 2 / (2 * sigma ** 2 / case.fs_hz))
+    assert abs(amplitude / AMPLITUDE - 1) < 0.05, f"gps-sdr-sim's amplitude {amplitude:.1f}"
+    assert abs(cn0 - case.cn0_dbhz) < 0.5, f"C/N0 {cn0:.2f} dB-Hz (amplitude {amplitude:.1f}, noise {sigma:.1f})"
 
 
 def test_a_synchronized_attack_from_another_generator_is_recovered(tmp_path, brdc_path):

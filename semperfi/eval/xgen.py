@@ -89,10 +89,14 @@ def render(nav_path: str | Path, out: Path, place: Place, case: Case) -> Path:
     n_bytes = 4 * int(round(case.fs_hz * 0.1)) * int(round(case.duration_s * 10))
     if out.is_file() and out.stat().st_size == n_bytes:
         return out
-    args = [exe, "-e", str(nav_path), "-l", f"{place.lat_deg:.9f},{place.lon_deg:.9f},{place.height_m:.3f}",
-            "-s", f"{case.fs_hz:.0f}", "-d", f"{case.duration_s:g}", "-b", "16", "-p", "-o", str(out)]
+    # gps-sdr-sim keeps file names in 100-character buffers: it runs in the output's folder, on short names
+    nav = out.parent / "nav.rnx"
+    if not nav.is_file():
+        shutil.copyfile(nav_path, nav)
+    args = [exe, "-e", nav.name, "-l", f"{place.lat_deg:.9f},{place.lon_deg:.9f},{place.height_m:.3f}",
+            "-s", f"{case.fs_hz:.0f}", "-d", f"{case.duration_s:g}", "-b", "16", "-p", "-o", out.name]
     args += ["-t", case.date] if case.own_date else ["-T", case.date]
-    r = subprocess.run(args, capture_output=True, text=True, timeout=3600)
+    r = subprocess.run(args, capture_output=True, text=True, timeout=3600, cwd=out.parent)
     if r.returncode != 0 or not out.is_file():
         raise XgenError(f"gps-sdr-sim failed ({r.returncode}): {(r.stderr or r.stdout).strip().splitlines()[-1:]}")
     return out
