@@ -63,11 +63,11 @@ class DefendedReceiver:
             self.inner.drop_channel(prn, "tracking the peak under cancellation")
 
     def _label(self, fix: Fix) -> None:
-        """What a fix is built on. Before any alarm it is nominal when its ranges pass the integrity test (RAIM), else
-        unverified (they disagree, or there are too few to check). After an alarm it is spoofing_detected (detect only), then recovering until every PRN it uses is
-        resolved (verified clean after cancellation, or examined and found to hold one signal), and its ranges pass
-        the integrity test with redundancy to spare: a mix of legitimate and spoofed ranges, or a fix that cannot be
-        checked, is never recovered."""
+        """What a fix is built on. Before any alarm it is nominal when its ranges pass the integrity test (RAIM),
+        else unverified (they disagree, or there are too few to check). After an alarm it is spoofing_detected
+        (detect only), then recovering until every PRN it uses is resolved (verified clean after cancellation, or
+        examined and found to hold one signal) and its ranges pass the integrity test with redundancy to spare: a
+        mix of legitimate and spoofed ranges, or a fix that cannot be checked, is never recovered."""
         g = self.guard
         if g.alarm_t_s is None:
             state = "nominal" if trusted(fix.raim) else "unverified"

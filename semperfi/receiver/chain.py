@@ -77,6 +77,7 @@ class Receiver:
         # PRNs a supervisor (the defence) distrusts: left out of fixes while enough others remain
         self.excluded_prns: set[int] = set()
         self.min_sats_excluding = 5
+        self.raim = self._raim_config()
 
     # -- events ---------------------------------------------------------------------------------------------
     def _emit(self, kind: str, t_rx_s: float, **fields) -> None:
@@ -284,7 +285,7 @@ class Receiver:
         p = self.cfg["pvt"]
         fix = solve(obs, sample / self.fs_hz, self._week, (self.iono or FALLBACK_IONO) if p["ionosphere"] else None,
                     troposphere=p["troposphere"], prior=self.last_fix, elevation_mask_deg=p["elevation_mask_deg"],
-                    raim=self._raim_config())
+                    raim=self.raim)
         if fix is None:
             return
         if fix.excluded_prns:
