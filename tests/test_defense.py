@@ -162,13 +162,18 @@ def test_amplitude_estimate_from_the_caf_peak(advantage_db):
     assert rms < 5.0, f"amplitude RMS error {rms:.2f} % at +{advantage_db:g} dB"
 
 
-@pytest.mark.parametrize("time_offset_s", [0.0, 5e-6], ids=["synchronized", "unsynchronized"])
+MERGED_CHIPS = 0.3   # under the CAF's resolution: one merged peak
+
+
+@pytest.mark.parametrize("time_offset_s", [MERGED_CHIPS / 1.023e6, 5e-6], ids=["merged-0.3chip", "unsynchronized"])
 def test_one_spoofed_prn_at_6_db_is_attenuated_by_20_db(tmp_path, time_offset_s):
     """The same scenario rendered with and without the attacker (same seed: same noise and satellites); what the
-    canceller leaves of the spoofer is the cleaned file minus the attack-free one. Synchronized, the legitimate
-    twin lies within a chip (both are estimated jointly); unsynchronized, ~5 chips away."""
+    canceller leaves of the spoofer is the cleaned file minus the attack-free one. Merged, the spoofer sits 0.3 chip
+    from its legitimate twin (one CAF peak): both are estimated jointly, the legitimate signal's offset is followed
+    to its true value, and the cleaned file's peak is the legitimate one (no crossing over to the spoofer's).
+    Unsynchronized, ~5 chips away."""
     common = ["constellation.max_satellites=6", "attacker.prns=[8]", "attacker.power_advantage_db=6.0",
-              f"attacker.time_offset_s={time_offset_s}"]
+              f"attacker.time_offset_s={time_offset_s}", "attacker.offset_east_m=0.0"]
     rows = simulate(tmp_path / "a.bin", "attacker.enabled=true", *common, duration=4.0, fmt="gr_complex")
     simulate(tmp_path / "z.bin", *common, duration=4.0, fmt="gr_complex")
     x, z = open_iq(tmp_path / "a.bin").read(0, int(4 * FS)), open_iq(tmp_path / "z.bin").read(0, int(4 * FS))
@@ -176,10 +181,11 @@ def test_one_spoofed_prn_at_6_db_is_attenuated_by_20_db(tmp_path, time_offset_s)
     caf = acquire(x[: int(0.01 * FS)], FS, [8], DopplerGrid(max_hz=6000, step_hz=333), coherent_ms=2, noncoherent=5)[8]
     fit = two_path_test(x[: int(0.04 * FS)], FS, 8, caf.best.code_phase_chips, caf.best.doppler_hz, n_blocks=40)
     legit = fit.second_code_phase_chips if fit.significant else None   # the spoofer is the stronger, here
-    if time_offset_s == 0.0:
+    merged = time_offset_s < 1e-6
+    if merged:
         assert legit is not None and chips_apart(legit, at0["legit"]) < 0.1, (fit, at0)
     canceller = Canceller(FS)
-    canceller.cancel(refine_peak(x[: int(0.01 * FS)], FS, 0.0, caf.best), 0, legit_code_phase_chips=legit)
+    track = canceller.cancel(refine_peak(x[: int(0.01 * FS)], FS, 0.0, caf.best), 0, legit_code_phase_chips=legit)
     y = np.concatenate([canceller.push(x[i:i + 200000]) for i in range(0, x.size, 200000)] + [canceller.flush()])
     assert y.size == x.size
     steady = slice(int(2.0 * FS), int(3.9 * FS))
@@ -187,6 +193,12 @@ def test_one_spoofed_prn_at_6_db_is_attenuated_by_20_db(tmp_path, time_offset_s)
     attenuation = 10 * np.log10(np.mean(np.abs(spoofer) ** 2) / np.mean(np.abs(left) ** 2))
     print(f"attenuation of PRN 8 at +6 dB: {attenuation:.1f} dB")
     assert attenuation > 20.0, f"attenuation {attenuation:.1f} dB"
+    if merged:
+        assert abs(track.legit_offset_chips - MERGED_CHIPS) < 0.03, track.legit_offset_chips
+        at3 = min((r for r in rows if r["prn"] == 8 and r["source"] == "legit"), key=lambda r: abs(r["t_rx_s"] - 3.0))
+        after = acquire(y[int(at3["t_rx_s"] * FS):][: int(0.02 * FS)], FS, [8], DopplerGrid(max_hz=6000, step_hz=333),
+                        coherent_ms=2, noncoherent=10)[8]
+        assert chips_apart(after.best.code_phase_chips, at3["code_phase_chips"]) < 0.05, (after.best, at3)
 
 
 def _run_defended(path, out, *sets, nav=None):

@@ -42,6 +42,7 @@ class Place:
 PLACES = {p.name: p for p in (Place("boston", 42.3398, -71.0892), Place("sydney", -33.8688, 151.2093),
                               Place("zurich", 47.3769, 8.5417), Place("singapore", 1.3521, 103.8198))}
 OWN_DATE = "2022/01/01,00:00:00"     # the shared ephemeris' own day (brdc0010.22n)
+RINEX_HEADER_END = "END OF HEADER"
 
 
 @dataclass(frozen=True)
@@ -49,7 +50,7 @@ class Case:
     place: Place
     offset_m: float                  # the claimed position, this far from the truth
     advantage_db: float              # spoofer power over the legitimate signals
-    date: str = OWN_DATE             # gps-sdr-sim's start time; another day moves the ephemeris there (-T)
+    date: str = OWN_DATE             # gps-sdr-sim's start time, on the day of the ephemeris file (ephemeris_day)
     azimuth_deg: float = 90.0        # direction of the claimed position (east)
     duration_s: float = 40.0
     fs_hz: float = 2.6e6
@@ -57,10 +58,6 @@ class Case:
     spoof_start_s: float = 0.0
     seed: int = 1
     attacker: bool = True            # False: the legitimate scene and noise only
-
-    @property
-    def own_date(self) -> bool:
-        return self.date == OWN_DATE
 
     @property
     def tag(self) -> str:
@@ -71,6 +68,17 @@ class Case:
 
 def gps_sdr_sim_path() -> str | None:
     return shutil.which(GPS_SDR_SIM)
+
+
+def ephemeris_day(nav_path: str | Path) -> str:
+    """gps-sdr-sim's start time for a RINEX 2 GPS navigation file: midnight of its first record's day."""
+    lines = Path(nav_path).read_text(errors="replace").splitlines()
+    try:
+        first = lines[next(i for i, line in enumerate(lines) if RINEX_HEADER_END in line) + 1]
+        yy, mm, dd = (int(v) for v in first[2:22].split()[:3])
+    except (StopIteration, IndexError, ValueError):
+        raise XgenError(f"{nav_path}: not a RINEX 2 GPS navigation file") from None
+    return f"{2000 + yy if yy < 80 else 1900 + yy:04d}/{mm:02d}/{dd:02d},00:00:00"
 
 
 def claimed_place(case: Case) -> Place:
@@ -90,12 +98,12 @@ def render(nav_path: str | Path, out: Path, place: Place, case: Case) -> Path:
     if out.is_file() and out.stat().st_size == n_bytes:
         return out
     # gps-sdr-sim keeps file names in 100-character buffers: it runs in the output's folder, on short names
-    nav = out.parent / "nav.rnx"
+    nav = out.parent / Path(nav_path).name
     if not nav.is_file():
         shutil.copyfile(nav_path, nav)
     args = [exe, "-e", nav.name, "-l", f"{place.lat_deg:.9f},{place.lon_deg:.9f},{place.height_m:.3f}",
-            "-s", f"{case.fs_hz:.0f}", "-d", f"{case.duration_s:g}", "-b", "16", "-p", "-o", out.name]
-    args += ["-t", case.date] if case.own_date else ["-T", case.date]
+            "-s", f"{case.fs_hz:.0f}", "-d", f"{case.duration_s:g}", "-b", "16", "-p", "-o", out.name,
+            "-t", case.date]
     r = subprocess.run(args, capture_output=True, text=True, timeout=3600, cwd=out.parent)
     if r.returncode != 0 or not out.is_file():
         raise XgenError(f"gps-sdr-sim failed ({r.returncode}): {(r.stderr or r.stdout).strip().splitlines()[-1:]}")
@@ -176,6 +184,6 @@ def run_case(case: Case, nav_path: str | Path, work: Path, defense: str = "full"
     data = prepare(case, nav_path, work)
     out = work / f"{case.tag}-{defense}{'' if assisted else '-unassisted'}"
     run_file(data, None, None, None, _receiver_config(None, [f'defense.mode="{defense}"']), out,
-             str(nav_path) if assisted and case.own_date else None, receiver_factory=DefendedReceiver)
-    return {"case": case.tag, "defense": defense, "assisted": assisted and case.own_date,
+             str(nav_path) if assisted else None, receiver_factory=DefendedReceiver)
+    return {"case": case.tag, "defense": defense, "assisted": assisted,
             **score(out / "fixes.csv", case.place)}
