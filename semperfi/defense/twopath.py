@@ -12,6 +12,7 @@ with y_b(tau) the block's correlation with the code delayed by tau. Under one pa
 is about chi-square with 2 x blocks degrees of freedom (times 1/2), which sets the threshold.
 """
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,28 +45,44 @@ PAD_CHIPS = 8
 
 
 @njit(cache=True, nogil=True)
-def _profile_kernel(wiped, chip_pos, offsets, code_pad, n_blocks, k):
-    """y[i, b] = sum over block b of wiped * code(chip_pos + offsets[i]); gram[i, j] over the first block."""
-    n_off = offsets.size
+def _profile_kernel(wiped, chip_pos, fracs, frac_of, shift_of, code_pad, n_blocks, k):
+    """y[i, b] = sum over block b of wiped * code(chip_pos + fracs[frac_of[i]] + shift_of[i]); and the first
+    block's replicas r[i, t], whose Gram matrix r r^T the caller forms (BLAS does a matrix product far faster).
+
+    Offsets a whole number of chips apart cut the samples into the same runs of one chip: for each fractional
+    offset the samples are summed per chip once (bins[m]), and each offset's correlation is the code, shifted,
+    against those sums -- a chip's worth of work per chip and offset instead of a sample's per sample."""
+    n_off = frac_of.size
+    n_chips = CA_CODE_LENGTH_CHIPS + 1
     y = np.zeros((n_off, n_blocks), dtype=np.complex128)
-    for i in range(n_off):
-        for b in range(n_blocks):
-            acc_re = 0.0
-            acc_im = 0.0
+    bins = np.empty(n_chips, dtype=np.complex128)
+    for b in range(n_blocks):
+        for f in range(fracs.size):
+            bins[:] = 0.0
             for t in range(b * k, (b + 1) * k):
-                c = code_pad[np.int64(np.floor(chip_pos[t] + offsets[i])) + PAD_CHIPS]
-                acc_re += c * wiped[t].real
-                acc_im += c * wiped[t].imag
-            y[i, b] = complex(acc_re, acc_im)
-    gram = np.zeros((n_off, n_off))
+                bins[np.int64(chip_pos[t] + fracs[f])] += wiped[t]   # >= 0: truncation is floor
+            for i in range(n_off):
+                if frac_of[i] != f:
+                    continue
+                base = shift_of[i] + PAD_CHIPS
+                acc = 0j
+                for m in range(n_chips):
+                    acc += code_pad[m + base] * bins[m]
+                y[i, b] = acc
+    first = np.empty((n_off, k), dtype=np.float32)   # +/-1: its products sum exactly in single precision
     for i in range(n_off):
-        for j in range(i, n_off):
-            acc = 0.0
-            for t in range(k):
-                acc += code_pad[np.int64(np.floor(chip_pos[t] + offsets[i])) + PAD_CHIPS] * \
-                    code_pad[np.int64(np.floor(chip_pos[t] + offsets[j])) + PAD_CHIPS]
-            gram[i, j] = gram[j, i] = acc
-    return y, gram
+        for t in range(k):
+            first[i, t] = code_pad[np.int64(chip_pos[t] + fracs[frac_of[i]]) + shift_of[i] + PAD_CHIPS]
+    return y, first
+
+
+def _split_offsets(offsets_chips):
+    """Each offset as a fractional part (shared by offsets whole chips apart) and a whole number of chips."""
+    offsets = np.asarray(offsets_chips, dtype=np.float64)
+    shift = np.floor(offsets + 1e-9)
+    frac = np.round(offsets - shift, 9)
+    fracs, frac_of = np.unique(frac, return_inverse=True)
+    return fracs, frac_of.astype(np.int64), shift.astype(np.int64)
 
 
 def _wipe_and_positions(samples, fs_hz, code_phase_chips, doppler_hz, if_hz, n_blocks):
@@ -73,7 +90,10 @@ def _wipe_and_positions(samples, fs_hz, code_phase_chips, doppler_hz, if_hz, n_b
     n = k * n_blocks
     t = np.arange(n)
     step = CA_CHIP_RATE_HZ * (1.0 + doppler_hz / L1_HZ) / fs_hz
-    wiped = samples[:n] * np.exp(-2j * np.pi * (doppler_hz + if_hz) / fs_hz * t)
+    cycles = (doppler_hz + if_hz) / fs_hz
+    # the carrier of one block, turned by each block's start phase: k + n_blocks exponentials instead of n
+    carrier = np.exp(-2j * np.pi * cycles * (k * np.arange(n_blocks)))[:, None] * np.exp(-2j * np.pi * cycles * t[:k])
+    wiped = (samples[:n].reshape(n_blocks, k) * carrier).ravel()
     return wiped, (code_phase_chips + t * step) % CA_CODE_LENGTH_CHIPS, k
 
 
@@ -85,8 +105,8 @@ def delay_profile(samples, fs_hz, prn, code_phase_chips, doppler_hz, if_hz, offs
     wiped, chip_pos, k = _wipe_and_positions(samples, fs_hz, code_phase_chips, doppler_hz, if_hz, n_blocks)
     code = ca_code(prn).astype(np.float64)
     code_pad = np.concatenate([code[-PAD_CHIPS:], code, code[:PAD_CHIPS]])
-    y, gram = _profile_kernel(wiped, chip_pos, np.asarray(offsets_chips, dtype=np.float64), code_pad, n_blocks, k)
-    return y, gram, k
+    y, first = _profile_kernel(wiped, chip_pos, *_split_offsets(offsets_chips), code_pad, n_blocks, k)
+    return y, (first @ first.T).astype(np.float64), k
 
 
 def delay_profile_reference(samples, fs_hz, prn, code_phase_chips, doppler_hz, if_hz, offsets_chips, n_blocks):
@@ -96,6 +116,12 @@ def delay_profile_reference(samples, fs_hz, prn, code_phase_chips, doppler_hz, i
     replicas = ca_code(prn).astype(np.float64)[chips % CA_CODE_LENGTH_CHIPS]
     y = np.einsum("ibk,bk->ib", replicas.reshape(len(offsets_chips), n_blocks, k), wiped.reshape(n_blocks, k))
     return y, replicas[:, :k] @ replicas[:, :k].T, k
+
+
+@functools.lru_cache(maxsize=32)
+def _threshold(pfa: float, n_offsets: int, n_blocks: int) -> float:
+    n_pairs = n_offsets * (n_offsets - 1) / 2   # the maximum over pairs: Bonferroni
+    return float(stats.chi2.isf(pfa / n_pairs, 2 * n_blocks) / 2)
 
 
 def two_path_test(samples, fs_hz, prn, code_phase_chips, doppler_hz, if_hz=0.0, n_blocks=20, span_chips=2.0,
@@ -120,7 +146,6 @@ def two_path_test(samples, fs_hz, prn, code_phase_chips, doppler_hz, if_hz=0.0, 
     if p_j > p_i:
         i, j, p_i, p_j = j, i, p_j, p_i
     statistic = float((e2.max() - e1[i1]) / noise_var)
-    n_pairs = offsets.size * (offsets.size - 1) / 2   # the maximum over pairs: Bonferroni
-    threshold = float(stats.chi2.isf(pfa / n_pairs, 2 * n_blocks) / 2)
+    threshold = _threshold(pfa, offsets.size, n_blocks)
     return TwoPathFit(prn, float((code_phase_chips + offsets[i]) % 1023), float((code_phase_chips + offsets[j]) % 1023),
                       float(10 * np.log10(max(p_j, 1e-30) / max(p_i, 1e-30))), statistic, threshold)

@@ -4,6 +4,7 @@ The defence looks past the strongest peak, so acquisition keeps the full CAF and
 threshold set from a stated false-alarm probability.
 """
 
+import functools
 from dataclasses import dataclass
 from typing import Iterable
 
@@ -70,9 +71,13 @@ def is_cross_correlation(doppler_hz: float, cn0_dbhz: float, stronger: Iterable[
                for dop, cn0 in stronger)
 
 
+@functools.lru_cache(maxsize=64)
 def _local_replica_fft(prn: int, n: int, fs_hz: float) -> np.ndarray:
+    """The sampled code's spectrum (cached: every look of every examination asks for the same ones)."""
     chips = np.floor(np.arange(n) * CA_CHIP_RATE_HZ / fs_hz).astype(np.int64) % CA_CODE_LENGTH_CHIPS
-    return scipy.fft.fft(ca_code(prn)[chips].astype(np.complex64))
+    spectrum = scipy.fft.fft(ca_code(prn)[chips].astype(np.complex64))
+    spectrum.flags.writeable = False
+    return spectrum
 
 
 EXCISE_DB = 13.0          # a spectral bin this far above its local noise floor is a spur, not GPS (see below)
@@ -207,16 +212,17 @@ def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: Dopple
     thr_theory = _threshold(pfa, dopplers.size * n_ms, noncoherent)
     pfa_cell = -np.expm1(np.log1p(-pfa) / (dopplers.size * n_ms))
     chi_median = stats.chi2.median(2 * noncoherent) / (2 * noncoherent)
-    # The Doppler wipe-off is shared by all PRNs: FFT each 1 ms block once per Doppler bin.
-    spectra = np.empty((dopplers.size, coherent_ms * noncoherent, n_ms), dtype=np.complex64)
+    # The Doppler wipe-off is shared by all PRNs: FFT each 1 ms block once per Doppler bin. The coherent sum of a
+    # replica's correlations is the correlation of the summed spectra (the transform is linear): one inverse FFT
+    # per non-coherent block instead of one per millisecond.
+    spectra = np.empty((dopplers.size, noncoherent, n_ms), dtype=np.complex64)
     for i, f in enumerate(dopplers):
         wiped = x * np.exp(-2j * np.pi * (f + if_hz) * t).astype(np.complex64)
-        spectra[i] = scipy.fft.fft(wiped.reshape(-1, n_ms), axis=1)
+        blocks = scipy.fft.fft(wiped.reshape(-1, n_ms), axis=1)
+        spectra[i] = np.conj(blocks.reshape(noncoherent, coherent_ms, n_ms).sum(axis=1))
     result = {}
     for prn in prns:
-        replica = _local_replica_fft(prn, n_ms, fs_hz)
-        r = scipy.fft.ifft(np.conj(spectra) * replica, axis=2)
-        coh = r.reshape(dopplers.size, noncoherent, coherent_ms, n_ms).sum(axis=2)
+        coh = scipy.fft.ifft(spectra * _local_replica_fft(prn, n_ms, fs_hz), axis=2)
         raw = np.mean(np.abs(coh) ** 2, axis=1)
         sigma2 = (np.median(raw, axis=1, keepdims=True) if tail_threshold else np.median(raw)) / chi_median
         power = (raw / sigma2).astype(np.float32)
