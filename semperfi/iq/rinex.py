@@ -96,22 +96,24 @@ def read_rinex_nav(path: str | Path) -> NavData:
         raise ValueError(f"{path}: not a readable RINEX GPS navigation file ({type(exc).__name__}: {exc})"[:300]) from None
     if nav is None or "sv" not in getattr(nav, "coords", {}) or "sqrtA" not in nav:
         raise ValueError(f"{path}: no GPS navigation records")
+    # plain arrays (time x sv): indexing the xarray dataset record by record costs seconds per file
+    cols = {v: nav[v].transpose("time", "sv").values for v in ("sqrtA", "GPSWeek", "Toe", "IODE", "IODC", "health",
+                                                              "FitIntvl", *_FIELDS) if v in nav}
+    times = [GpsTime.from_datetime(np.datetime64(t, "us").astype(object)) for t in nav.time.values]
     ephemerides = []
-    for sv in nav.sv.values:
+    for j, sv in enumerate(nav.sv.values):
         if not str(sv).startswith("G"):
             continue
-        rec = nav.sel(sv=sv)
-        for ti in range(rec.sizes["time"]):
-            r = rec.isel(time=ti)
-            if not np.isfinite(float(r["sqrtA"])):
+        for ti, toc in enumerate(times):
+            if not np.isfinite(cols["sqrtA"][ti, j]):
                 continue
-            toc = GpsTime.from_datetime(np.datetime64(r.time.values, "us").astype(object))
             try:
                 eph = Ephemeris(
-                    prn=int(str(sv)[1:]), week=int(float(r["GPSWeek"])), toe_s=float(r["Toe"]), toc_s=toc.tow_s,
-                    iode=int(float(r["IODE"])), iodc=int(float(r["IODC"])), health=int(float(r["health"])),
-                    fit_interval_flag=int(float(r["FitIntvl"]) > 4.0) if "FitIntvl" in r else 0,
-                    **{f: float(r[v]) if v in r else 0.0 for v, f in _FIELDS.items()})
+                    prn=int(str(sv)[1:]), week=int(cols["GPSWeek"][ti, j]), toe_s=float(cols["Toe"][ti, j]),
+                    toc_s=toc.tow_s, iode=int(cols["IODE"][ti, j]), iodc=int(cols["IODC"][ti, j]),
+                    health=int(cols["health"][ti, j]),
+                    fit_interval_flag=int(cols["FitIntvl"][ti, j] > 4.0) if "FitIntvl" in cols else 0,
+                    **{f: float(cols[v][ti, j]) if v in cols else 0.0 for v, f in _FIELDS.items()})
             except (ValueError, OverflowError):
                 continue
             if _plausible(eph):
