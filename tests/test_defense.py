@@ -217,7 +217,10 @@ def _horizontal_m(fix):
 
 # A synchronized attacker (on GPS time) leaves each PRN's two peaks apart by the offset projected on that
 # satellite's line of sight only: some PRNs within a chip of their twin. The grid holds 500 m, 1 km and 3 km offsets
-# at +3, +6 and +10 dB, synchronized, and one unsynchronized spoofer (5 us off GPS time).
+# at +3, +6 and +10 dB, synchronized, and one unsynchronized spoofer (5 us off GPS time). The attack starts once the
+# receiver has held the legitimate signals alone for a while (NEWCOMER_AFTER_S): what tells the attacker's peaks,
+# without a maneuver, is that they are the newcomers.
+ATTACK_START_S = 6.0
 GRID = [(500.0, 3.0, 0.0), (500.0, 10.0, 0.0), (1000.0, 3.0, 0.0), (1000.0, 6.0, 0.0), (1000.0, 10.0, 0.0),
         (3000.0, 6.0, 0.0), (3000.0, 10.0, 0.0), (1000.0, 6.0, 5e-6)]
 
@@ -226,12 +229,14 @@ GRID = [(500.0, 3.0, 0.0), (500.0, 10.0, 0.0), (1000.0, 3.0, 0.0), (1000.0, 6.0,
                          ids=[f"{o / 1000:g}km-{p:+g}dB-{'sync' if t == 0 else 'unsync'}" for o, p, t in GRID])
 def test_attack_is_recovered_within_5_m_and_no_wrong_fix_is_called_good(tmp_path, brdc_path, offset_m, advantage_db,
                                                                         time_offset_s):
-    duration = 16.0
+    duration = 18.0
     rows = simulate(tmp_path / "a.bin", f'constellation.rinex="{brdc_path}"', 'time.start="2022-01-01T00:00:27"',
-                    "constellation.max_satellites=8", "attacker.enabled=true", f"attacker.offset_east_m={offset_m}",
+                    "constellation.max_satellites=8", "attacker.enabled=true", f"attacker.start_s={ATTACK_START_S}",
+                    f"attacker.offset_east_m={offset_m}",
                     f"attacker.power_advantage_db={advantage_db}", f"attacker.time_offset_s={time_offset_s}",
                     duration=duration)
-    first = {(r["prn"], r["source"]): r["pseudorange_m"] for r in rows if r["t_rx_s"] == rows[0]["t_rx_s"]}
+    t_on = min(r["t_rx_s"] for r in rows if r["source"] == "spoof")
+    first = {(r["prn"], r["source"]): r["pseudorange_m"] for r in rows if r["t_rx_s"] == t_on}
     separations = sorted(abs(first[(p, "spoof")] - first[(p, "legit")]) / 293.05 for p, s in first if s == "spoof")
     summary, fixes, events, _ = _run_defended(tmp_path / "a.bin", tmp_path / "out", nav=str(brdc_path))
     kinds = [e["event"] for e in events]
@@ -239,14 +244,35 @@ def test_attack_is_recovered_within_5_m_and_no_wrong_fix_is_called_good(tmp_path
     called_good = [(f["t_rx_s"], round(_horizontal_m(f), 1)) for f in fixes
                    if f["state"] in ("nominal", "recovered") and _horizontal_m(f) > 10.0]
     assert not called_good, f"fixes called good while wrong (t, error m): {called_good[:5]}"
+    # the newcomers are known on PRNs whose twins lie a chip or more apart; a twin closer than that is resolved by
+    # the two-path fit, but which of the two is the newcomer is then a guess, and no fix is called recovered
+    guessed = next(e for e in events if e["event"] == "defense_summary")["guessed"]
     recovered = [f for f in fixes if f["state"] == "recovered"]
-    assert recovered, f"no recovered fix; states {sorted({f['state'] for f in fixes})}"
-    last = [_horizontal_m(f) for f in recovered if float(f["t_rx_s"]) > duration - 5.0]
-    errors = [_horizontal_m(f) for f in recovered]
+    assert recovered or guessed, f"no recovered fix; states {sorted({f['state'] for f in fixes})}"
+    after = [f for f in fixes if float(f["t_rx_s"]) > duration - 5.0]
+    last = [_horizontal_m(f) for f in after]
     print(f"{offset_m:g} m {advantage_db:+g} dB offset {time_offset_s:g} s: separations (chips) "
-          f"{[round(s, 2) for s in separations]}; {len(recovered)} recovered fixes, mean {np.mean(errors):.2f} m, "
-          f"max {np.max(errors):.2f} m, last 5 s mean {np.mean(last) if last else float('nan'):.2f} m")
-    assert last and np.mean(last) < 5.0, f"last 5 s: {len(last)} recovered fixes, mean {np.mean(last) if last else 0:.1f} m"
+          f"{[round(s, 2) for s in separations]}; {len(recovered)} recovered fixes; guessed PRNs {guessed}; "
+          f"last 5 s: {sorted({f['state'] for f in after})}, mean {np.mean(last) if last else float('nan'):.2f} m, "
+          f"max {np.max(last) if last else float('nan'):.2f} m")
+    assert last and np.mean(last) < 5.0, f"last 5 s: {len(last)} fixes, mean {np.mean(last) if last else 0:.1f} m"
+
+
+def test_a_weaker_attacker_on_from_the_first_sample_is_never_called_recovered(tmp_path, brdc_path):
+    """No earlier lock and no maneuver: which peak is the attacker's is a guess (the stronger), here a wrong one --
+    the attacker is 3 dB weaker, the legitimate signals are cancelled and the receiver follows the spoofer's ranges,
+    which agree with each other. None of those fixes may be called nominal or recovered."""
+    rows = simulate(tmp_path / "w.bin", f'constellation.rinex="{brdc_path}"', 'time.start="2022-01-01T00:00:27"',
+                    "constellation.max_satellites=8", "attacker.enabled=true", "attacker.power_advantage_db=-3.0",
+                    duration=16.0)
+    assert any(r["source"] == "spoof" and r["t_rx_s"] == rows[0]["t_rx_s"] for r in rows)
+    summary, fixes, events, _ = _run_defended(tmp_path / "w.bin", tmp_path / "out", nav=str(brdc_path))
+    starts = [e for e in events if e["event"] == "cancellation_start"]
+    assert starts and all(e["guessed"] for e in starts), starts
+    assert fixes and max(_horizontal_m(f) for f in fixes) > 100.0, "the guess cancels the legitimate signals"
+    called_good = [(f["t_rx_s"], f["state"], round(_horizontal_m(f), 1)) for f in fixes
+                   if f["state"] in ("nominal", "recovered") and _horizontal_m(f) > 10.0]
+    assert not called_good, called_good[:5]
 
 
 def test_hostile_attacker_with_five_copies_per_prn_is_bounded(tmp_path, brdc_path):

@@ -36,7 +36,8 @@ def test_the_mix_puts_gps_sdr_sim_satellites_at_the_c_n0_asked_for(tmp_path, brd
 
 
 def test_a_synchronized_attack_from_another_generator_is_recovered(tmp_path, brdc_path):
-    case = Case(PLACES["boston"], 1000.0, 6.0, duration_s=22.0)
+    """The spoofer switches on at 6 s, once the receiver holds the legitimate signals: its peaks are the newcomers."""
+    case = Case(PLACES["boston"], 1000.0, 6.0, duration_s=24.0, spoof_start_s=6.0)
     r = run_case(case, brdc_path, tmp_path)
     print(r)
     assert r["called_good_but_wrong"] == 0, r

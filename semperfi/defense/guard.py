@@ -42,6 +42,9 @@ class SpoofGuard:
         self.verified: set[int] = set()                  # PRNs whose legitimate peak dominates after cancellation
         self.pending_verify: dict[int, tuple[float, object, int]] = {}  # PRN -> (when, adversarial peak, stage)
         self.gave_up: dict[int, str] = {}
+        # PRNs whose attacker's peak was chosen by an assumption (the stronger one, the later one, a user's list), not
+        # known: the attacker controls its power and delay, so what is cancelled may be the legitimate signal
+        self.guessed: set[int] = set()
         self.extra_prns: set[int] = set()                # PRNs the user of the guard wants examined too
         self._startup_samples = int(self.d["startup_s"] * fs_hz)
         self._held: list[np.ndarray] = []
@@ -127,6 +130,8 @@ class SpoofGuard:
             self._emit("cancellation_refused", t_s, prn=alarm.prn, reason=self.gave_up[alarm.prn])
             return
         self.cancel_started.setdefault(alarm.prn, t_s)
+        if choice.guessed:
+            self.guessed.add(alarm.prn)
         self.pending_verify[alarm.prn] = (t_s + self.d["verify_after_s"], peak, stage)
         self._emit("cancellation_start", t_s, prn=alarm.prn, stage=stage, guessed=choice.guessed, reason=choice.reason,
                    adversarial_code_phase_chips=round(peak.code_phase_chips, 4),
@@ -159,6 +164,8 @@ class SpoofGuard:
                     choice = choose(Alarm(t_s, prn, pairs[0], None), self.policy, self.policy_prns)
                     if choice is not None:
                         target, reason = choice.adversarial, "another auxiliary peak remains: " + choice.reason
+                        if choice.guessed:
+                            self.guessed.add(prn)
             self._emit("sic_iteration", t_s, prn=prn, stage=stage, legitimate_dominates=target is None,
                        strongest_code_phase_chips=None if caf.best is None else round(caf.best.code_phase_chips, 4),
                        attenuation_db=self.canceller.report().get(prn), next=reason or None)
@@ -207,4 +214,5 @@ class SpoofGuard:
         self._emit("defense_summary", t_s, alarms=sorted(self.alarmed_prns), cancelled=sorted(self.cancel_started),
                    verified=sorted(self.verified), gave_up=self.gave_up, attenuation_db=self.canceller.report(),
                    resolved=sorted(p for p in self._present | self.extra_prns if self.resolved(p)),
+                   guessed=sorted(self.guessed),
                    suspect_close=sorted(self.detector.close))

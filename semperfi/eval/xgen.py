@@ -63,6 +63,8 @@ class Case:
     def tag(self) -> str:
         day = self.date.split(",")[0].replace("/", "")
         attack = f"{self.offset_m:g}m-{self.advantage_db:+g}dB" if self.attacker else "clean"
+        if self.attacker and self.spoof_start_s:
+            attack += f"-from{self.spoof_start_s:g}s"
         return f"{self.place.name}-{day}-{attack}-{self.fs_hz / 1e6:g}M-{self.duration_s:g}s-s{self.seed}"
 
 
