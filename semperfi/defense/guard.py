@@ -11,7 +11,7 @@ import numpy as np
 from ..receiver.acquisition import DopplerGrid, acquire
 from .canceller import Canceller, CancellerConfig, caf_amplitude, refine_peak
 from .detector import Alarm, DetectorConfig, SpoofingDetector, auxiliary_peaks, chips_apart
-from .policy import choose, parse_policy
+from .policy import Choice, by_power, choose, parse_policy
 
 WINDOW_MS = 40     # samples kept for examinations: acquisition looks at the first 10 ms, the two-path test at the
                    # first 20 (all 40 once the attack is known: the highest sensitivity)
@@ -19,7 +19,10 @@ EXAMINE_MAX_PEAKS = 16  # a strong spoofer's Doppler and code sidelobes are loca
 
 
 class SpoofGuard:
-    def __init__(self, cfg: dict, fs_hz: float, if_hz: float = 0.0, events=None, on_cancel=None):
+    def __init__(self, cfg: dict, fs_hz: float, if_hz: float = 0.0, events=None, on_cancel=None, maneuver=None,
+                 nav_context=None):
+        """maneuver: a ManeuverIdentifier (an INS track with a maneuver in it), whose verdicts replace the policy's
+        guesses; nav_context() -> (ephemeris_of(prn, tow_s), a recent fix) for its lines of sight."""
         self.cfg, self.d = cfg, cfg["defense"]
         if self.d["mode"] not in ("off", "detect", "full"):
             raise ValueError(f"--defense wants off, detect or full; got '{self.d['mode']}'")
@@ -46,6 +49,10 @@ class SpoofGuard:
         # known: the attacker controls its power and delay, so what is cancelled may be the legitimate signal
         self.guessed: set[int] = set()
         self.extra_prns: set[int] = set()                # PRNs the user of the guard wants examined too
+        self.maneuver, self.nav_context = maneuver, nav_context
+        self.awaiting: dict[int, Alarm] = {}             # alarmed PRNs whose attacker's peak the maneuver will name
+        self.attacker_stronger: bool | None = None       # what the maneuver showed of the attacker's power, if clear
+        self._inference = ""
         self._startup_samples = int(self.d["startup_s"] * fs_hz)
         self._held: list[np.ndarray] = []
         self._last_cafs: dict = {}
@@ -60,6 +67,10 @@ class SpoofGuard:
         chunk = np.asarray(chunk, dtype=np.complex64)
         self._seen += chunk.size
         self._raw = np.concatenate([self._raw, chunk])[-self.window:]
+        if self.maneuver is not None:
+            self.maneuver.push(chunk)
+            if self.maneuver.due_to_end(self._seen / self.fs_hz):
+                self._identify(self._seen / self.fs_hz)
         starting = self.d["mode"] != "off" and self._seen < self._startup_samples
         if self.d["mode"] != "off" and self._seen >= self._next_exam and self._raw.size >= self.window:
             self._examine()
@@ -104,6 +115,8 @@ class SpoofGuard:
                              10 if self.detector.sensitive else 5)
         self._present |= {p for p, c in cafs.items() if c.best is not None}
         self._last_cafs.update(cafs)
+        if self.maneuver is not None and self.maneuver.due_to_start(t_s):
+            self._follow_through_maneuver(cafs)
         looked = self._raw if self.detector.sensitive else self._raw[:self.window // 2]
         for alarm in self.detector.examine(cafs, t_s, looked):
             self.alarmed_prns.add(alarm.prn)
@@ -111,10 +124,67 @@ class SpoofGuard:
                 self.alarm_t_s = t_s
             self._emit("spoofing_alarm", t_s, **alarm.pair.as_event())
             if self.d["mode"] == "full":
-                self._start_cancelling(alarm, t_s)
+                self._on_alarm(alarm, t_s)
 
-    def _start_cancelling(self, alarm, t_s: float) -> None:
+    def _on_alarm(self, alarm: Alarm, t_s: float) -> None:
+        """Cancel the attacker's peak; when that would be a guess and a maneuver is still to come, wait for it."""
         choice = choose(alarm, self.policy, self.policy_prns)
+        if choice is not None and choice.guessed and self.attacker_stronger is not None:
+            choice = by_power(alarm, self.attacker_stronger, self._inference)
+        if choice is not None and choice.guessed and self.maneuver is not None and self.maneuver.pending(t_s):
+            self.awaiting[alarm.prn] = alarm
+            self._emit("identification_pending", t_s, prn=alarm.prn, maneuver_s=self.maneuver.window_s)
+            return
+        self._start_cancelling(alarm, t_s, choice)
+
+    def _follow_through_maneuver(self, cafs: dict) -> None:
+        """The maneuver begins: follow both peaks of every PRN awaiting a verdict, and every other PRN's peak."""
+        peaks = {}
+        for prn, caf in cafs.items():
+            if caf.best is None or (prn not in self.awaiting and prn not in self.extra_prns):
+                continue   # the receiver's own PRNs only: a strong attacker's cross-talk makes peaks on absent ones
+            pairs = auxiliary_peaks(caf, cafs, self.detector.cfg, self.fs_hz) if prn in self.awaiting else []
+            peaks[prn] = [pairs[0].main, pairs[0].auxiliary] if pairs else [caf.best]
+        self.maneuver.start(peaks, self._seen - self.window, self._raw)
+        self._emit("maneuver_follow", (self._seen - self.window) / self.fs_hz, followers=len(self.maneuver.followers))
+
+    def _identify(self, t_s: float) -> None:
+        """The maneuver is over: cancel each awaiting PRN's peak that did not follow the vehicle's motion. A PRN
+        left undecided falls back on the policy's guess; a lone peak that did not follow the motion is the
+        attacker's with no legitimate twin in sight: its PRN is kept out of the fixes."""
+        ephemeris_of, fix = self.nav_context() if self.nav_context is not None else (None, None)
+        ident = self.maneuver.identify(ephemeris_of, fix)
+        self._emit("identification", t_s, verdicts=[
+            {"prn": v.prn, "peak": v.peak_id, "adversarial": v.adversarial, "decided": v.decided,
+             "score": round(v.score, 2), "reason": v.reason} for v in ident.verdicts])
+        now = self._seen - self.window
+        for v in ident.verdicts:
+            if v.decided and v.adversarial and v.prn not in self.awaiting:
+                self.gave_up[v.prn] = "identified as the attacker's (maneuver), no legitimate twin found"
+        decided = {}   # PRN -> (attacker's follower, the other)
+        for prn in self.awaiting:
+            adversarial = [v for v in ident.verdicts if v.prn == prn and v.decided and v.adversarial]
+            other = (prn, 1 - adversarial[0].peak_id) if len(adversarial) == 1 else None
+            if other in ident.followers:
+                decided[prn] = (ident.followers[(prn, adversarial[0].peak_id)], ident.followers[other])
+        relation = {adv.peak.metric > legit.peak.metric for adv, legit in decided.values()}
+        if len(decided) >= 3 and len(relation) == 1:
+            self.attacker_stronger = relation.pop()
+            self._inference = (f"inferred: on the {len(decided)} PRNs the maneuver decided, the attacker's peak was "
+                               f"the {'stronger' if self.attacker_stronger else 'weaker'}")
+        for prn, alarm in list(self.awaiting.items()):
+            del self.awaiting[prn]
+            adv, legit = decided.get(prn, (None, None))
+            adv_now, legit_now = (adv.peak_at(now), legit.peak_at(now)) if adv is not None else (None, None)
+            if adv_now is not None and legit_now is not None:
+                self._start_cancelling(alarm, t_s, Choice(adv_now, legit_now, False, "maneuver: the other peak "
+                                                          "follows the vehicle's motion, this one does not"))
+            else:   # examined afresh: its peaks have moved since the alarm
+                self.alarmed_prns.discard(prn)
+                self.detector.alarmed.discard(prn)
+                self.detector.streak[prn] = 0
+
+    def _start_cancelling(self, alarm, t_s: float, choice: Choice | None) -> None:
         if choice is None:
             return
         if sum(len(s.tracks) for s in self.canceller.stages) >= self.d["max_tracks"]:

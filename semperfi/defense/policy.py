@@ -50,3 +50,11 @@ def choose(alarm: Alarm, policy: str, prns: frozenset[int] = frozenset()) -> Cho
     reason = {"prn": "listed PRN; assumed: the stronger peak is the attacker's"}.get(
         policy, "assumed: the stronger peak is the attacker's (no earlier lock to tell them apart)")
     return Choice(stronger, weaker, True, reason)
+
+
+def by_power(alarm: Alarm, attacker_stronger: bool, reason: str) -> Choice:
+    """The attacker's peak by a power relation the maneuver established on other PRNs (not a guess: one
+    transmitter, one relation, and the attacker cannot know in advance which PRNs the maneuver leaves undecided)."""
+    main, aux = alarm.pair.main, alarm.pair.auxiliary
+    stronger, weaker = (main, aux) if main.metric >= aux.metric else (aux, main)
+    return Choice(stronger, weaker, False, reason) if attacker_stronger else Choice(weaker, stronger, False, reason)

@@ -208,6 +208,10 @@ class Receiver:
         if dec.ephemeris is not None and self._week is None:
             self._week = dec.ephemeris.week
 
+    def ephemeris_at(self, prn: int, tow_s: float):
+        """The ephemeris this receiver would use for a PRN at a GPS time (assisted, else decoded), or None."""
+        return self._ephemeris(prn, tow_s)
+
     def _ephemeris(self, prn: int, tow_s: float):
         if self.assisted is not None:
             eph = self.assisted.ephemeris(prn, GpsTime(self._week, tow_s)) if self._week is not None else None

@@ -1,0 +1,153 @@
+"""The Adversarial Peak Identifier on a stream of samples: follow every candidate peak through the vehicle's
+maneuver, then decide peak by peak (identifier.identify_peaks) whose range followed the motion the INS measured.
+
+When the maneuver window (found in the INS track) begins, every peak of the latest examination gets a tracking
+channel of its own on the raw samples: both peaks of each PRN awaiting a verdict, and the single peak of every
+other PRN (they make the consensus clock). A channel's accumulated carrier phase is its peak's range change
+(-wavelength x integrated Doppler), to millimetres. Two peaks closer than SEPARATE_CHIPS pull one another's loops
+and are not followed apart: such a PRN stays undecided. When the window ends, the histories go to the identifier
+with each satellite's line of sight and its own range change over the window (from the ephemeris).
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..gps.constants import L1_WAVELENGTH_M, SPEED_OF_LIGHT_M_S
+from ..gps.ephemeris import satellite_position
+from ..gps.geometry import enu_rotation
+from ..receiver.acquisition import Peak
+from ..receiver.tracking import NEXT_SAMPLE, Channel, LoopConfig, initial_state
+from .detector import chips_apart
+from .identifier import ImuTrack, LineOfSight, PeakHistory, PeakVerdict, identify_peaks
+from .imu_track import find_maneuver
+
+SEPARATE_CHIPS = 1.5          # closer peaks share a tracking loop's discriminator
+FOLLOW_LOOP = LoopConfig(pull_in_ms=300, min_cn0_dbhz=20.0, lost_windows=10)
+HISTORY_EVERY_MS = 20         # one range sample per 20 ms is plenty for a 10-20 s maneuver
+SETTLE_S = 0.5                # the window's first half second: the followers' loops settle
+FLIGHT_TIME_S = 0.075         # signal flight time, for the satellites' transmit instants (its changes are negligible)
+
+
+class PeakFollower:
+    """One candidate peak followed by its own tracking channel; its range history from the carrier."""
+
+    def __init__(self, prn: int, peak_id: int, peak: Peak, peak_sample: int, start_sample: int, fs_hz: float,
+                 if_hz: float):
+        self.prn, self.peak_id, self.peak, self.fs_hz = prn, peak_id, peak, fs_hz
+        st = initial_state(peak.code_phase_chips, peak_sample, peak.doppler_hz, fs_hz, start_sample)
+        self.channel = Channel(prn, fs_hz, if_hz, st, FOLLOW_LOOP)
+        self.t_s: list[float] = []
+        self.range_m: list[float] = []
+        self.doppler_hz: list[float] = []
+
+    @property
+    def next_sample(self) -> float:
+        return float(self.channel.st[NEXT_SAMPLE])
+
+    def feed(self, x: np.ndarray, base_sample: int) -> None:
+        prompts, first = self.channel.process(x, base_sample)
+        ch = self.channel
+        for ms in range(first, first + prompts.size):
+            if ms < FOLLOW_LOOP.pull_in_ms or ms % HISTORY_EVERY_MS:
+                continue
+            i = ms % ch.HISTORY_MS
+            self.t_s.append(float(ch.epoch_sample[i]) / self.fs_hz)
+            self.range_m.append(-L1_WAVELENGTH_M * float(ch.carrier_cycles[i]))
+            self.doppler_hz.append(float(ch.doppler_hz[i]))
+
+    def history(self) -> PeakHistory | None:
+        if len(self.t_s) < 10 or not self.channel.locked:
+            return None
+        return PeakHistory(self.prn, self.peak_id, np.array(self.t_s), np.array(self.range_m), np.array(self.doppler_hz))
+
+    def peak_at(self, sample: int) -> Peak | None:
+        """Where this peak is at an absolute sample (acquisition's convention: the chip arriving then)."""
+        around = self.channel.epoch_around(sample)
+        if around is None:
+            return None
+        return Peak(self.prn, around[1] * 1023.0, self.channel.doppler_at(sample), self.peak.metric, self.peak.cn0_dbhz)
+
+
+@dataclass(frozen=True)
+class Identification:
+    verdicts: tuple[PeakVerdict, ...]
+    followers: dict                # (prn, peak_id) -> PeakFollower
+
+
+def lines_of_sight(prns, ephemeris_of, fix, t_s: np.ndarray) -> dict[int, LineOfSight]:
+    """Each satellite's unit line of sight (NED, from the fix's position) and its own range change over t_s.
+
+    ephemeris_of(prn, tow_s) gives the ephemeris; fix is any recent fix (spoofed or not: a line of sight moves by
+    1e-4 rad per kilometre of position error). Receiver time t_s maps to GPS time through the fix."""
+    pos = np.asarray(fix.pos_ecef_m, dtype=float)
+    enu = enu_rotation(np.radians(fix.lat_deg), np.radians(fix.lon_deg))
+    out = {}
+    for prn in prns:
+        tow = fix.gps_tow_s + (t_s - fix.t_rx_s) - FLIGHT_TIME_S
+        eph = ephemeris_of(prn, float(tow[0]))
+        if eph is None:
+            continue
+        sat = satellite_position(eph, tow)
+        rng = np.linalg.norm(sat - pos, axis=1)
+        u_enu = enu @ ((sat[0] - pos) / rng[0])
+        out[prn] = LineOfSight(prn, (float(u_enu[1]), float(u_enu[0]), float(-u_enu[2])), t_s, rng - rng[0],
+                               np.gradient(rng, t_s))
+    return out
+
+
+class ManeuverIdentifier:
+    """Follows candidate peaks through the maneuver window of an INS track, and identifies them at its end."""
+
+    def __init__(self, track: ImuTrack, fs_hz: float, if_hz: float = 0.0):
+        self.track, self.fs_hz, self.if_hz = track, fs_hz, if_hz
+        self.window_s = find_maneuver(track)
+        self.followers: dict[tuple[int, int], PeakFollower] = {}
+        self._buf = np.empty(0, dtype=np.complex64)
+        self._base = 0
+        self.started = self.ended = False
+
+    def pending(self, t_s: float) -> bool:
+        """Whether a verdict can still come from this track's maneuver (it has not begun by t_s)."""
+        return self.window_s is not None and not self.started and t_s < self.window_s[0]
+
+    def due_to_start(self, t_s: float) -> bool:
+        return self.window_s is not None and not self.started and t_s >= self.window_s[0]
+
+    def due_to_end(self, t_s: float) -> bool:
+        return self.started and not self.ended and t_s >= self.window_s[1]
+
+    def start(self, peaks_by_prn: dict[int, list[Peak]], peak_sample: int, window: np.ndarray) -> None:
+        """Follow these peaks from peak_sample (the first sample of `window`, where their code phases hold)."""
+        self.started = True
+        for prn, peaks in peaks_by_prn.items():
+            if len(peaks) > 1 and chips_apart(peaks[0].code_phase_chips, peaks[1].code_phase_chips) < SEPARATE_CHIPS:
+                continue
+            for k, p in enumerate(peaks):
+                self.followers[(prn, k)] = PeakFollower(prn, k, p, peak_sample, peak_sample, self.fs_hz, self.if_hz)
+        self._buf, self._base = np.asarray(window, dtype=np.complex64), peak_sample
+        self._feed()
+
+    def push(self, chunk: np.ndarray) -> None:
+        if not self.started or self.ended:
+            return
+        self._buf = np.concatenate([self._buf, chunk])
+        self._feed()
+
+    def _feed(self) -> None:
+        for f in self.followers.values():
+            f.feed(self._buf, self._base)
+        keep = min([int(f.next_sample) for f in self.followers.values()] + [self._base + self._buf.size])
+        drop = max(0, keep - self._base)
+        self._buf, self._base = self._buf[drop:], self._base + drop
+
+    def identify(self, ephemeris_of, fix) -> Identification:
+        """The per-peak verdicts at the window's end (peaks that lost lock or lack an ephemeris are left out)."""
+        self.ended = True
+        t0, t1 = self.window_s
+        histories = [h for h in (f.history() for f in self.followers.values()) if h is not None]
+        t = np.linspace(t0 + SETTLE_S, t1, 101)
+        los = lines_of_sight(sorted({h.prn for h in histories}), ephemeris_of, fix, t) if fix is not None else {}
+        usable = [h for h in histories if h.prn in los and h.t_s[0] <= t0 + SETTLE_S + 1.0 and h.t_s[-1] >= t1 - 1.0]
+        verdicts = identify_peaks(usable, los, self.track) if len(usable) >= 3 else []
+        return Identification(tuple(verdicts), self.followers)
