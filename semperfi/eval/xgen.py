@@ -58,6 +58,7 @@ class Case:
     spoof_start_s: float = 0.0
     seed: int = 1
     attacker: bool = True            # False: the legitimate scene and noise only
+    motion: str = ""                 # the receiver's 10 Hz trajectory (gps-sdr-sim -u: t,x,y,z ECEF); empty: static
 
     @property
     def tag(self) -> str:
@@ -65,6 +66,8 @@ class Case:
         attack = f"{self.offset_m:g}m-{self.advantage_db:+g}dB" if self.attacker else "clean"
         if self.attacker and self.spoof_start_s:
             attack += f"-from{self.spoof_start_s:g}s"
+        if self.motion:
+            attack += "-" + Path(self.motion).stem
         return f"{self.place.name}-{day}-{attack}-{self.fs_hz / 1e6:g}M-{self.duration_s:g}s-s{self.seed}"
 
 
@@ -91,8 +94,9 @@ def claimed_place(case: Case) -> Place:
     return Place(f"{case.place.name}-claimed", float(lat), float(lon), float(h))
 
 
-def render(nav_path: str | Path, out: Path, place: Place, case: Case) -> Path:
-    """One gps-sdr-sim scene (16-bit IQ, fixed gain), cached: a file of the right size is reused."""
+def render(nav_path: str | Path, out: Path, place: Place, case: Case, motion: str = "") -> Path:
+    """One gps-sdr-sim scene (16-bit IQ, fixed gain), static at a place or along a motion file; cached: a file of
+    the right size is reused."""
     exe = gps_sdr_sim_path()
     if exe is None:
         raise XgenError(f"{GPS_SDR_SIM} not found on PATH (build it from github.com/osqzss/gps-sdr-sim: one gcc line)")
@@ -103,7 +107,10 @@ def render(nav_path: str | Path, out: Path, place: Place, case: Case) -> Path:
     nav = out.parent / Path(nav_path).name
     if not nav.is_file():
         shutil.copyfile(nav_path, nav)
-    args = [exe, "-e", nav.name, "-l", f"{place.lat_deg:.9f},{place.lon_deg:.9f},{place.height_m:.3f}",
+    if motion:
+        shutil.copyfile(motion, out.parent / "motion.csv")
+    where = ["-u", "motion.csv"] if motion else ["-l", f"{place.lat_deg:.9f},{place.lon_deg:.9f},{place.height_m:.3f}"]
+    args = [exe, "-e", nav.name, *where,
             "-s", f"{case.fs_hz:.0f}", "-d", f"{case.duration_s:g}", "-b", "16", "-p", "-o", out.name,
             "-t", case.date]
     r = subprocess.run(args, capture_output=True, text=True, timeout=3600, cwd=out.parent)
@@ -148,11 +155,17 @@ def horizontal_error_m(x_m: float, y_m: float, z_m: float, place: Place) -> floa
     return float(math.hypot(e, n))
 
 
-def score(fixes_csv: Path, place: Place, last_s: float = 10.0, bad_m: float = 10.0) -> dict:
-    """What a receiver made of a case: horizontal error over the last seconds, first fix, wrong fixes called good."""
+def score(fixes_csv: Path, place: Place, last_s: float = 10.0, bad_m: float = 10.0, motion: str = "") -> dict:
+    """What a receiver made of a case: horizontal error over the last seconds, first fix, wrong fixes called good.
+    With a motion file the truth is the trajectory at each fix's time (10 Hz rows)."""
     rows = list(csv.DictReader(open(fixes_csv, newline="")))
     t = np.array([float(r["t_rx_s"]) for r in rows])
-    err = np.array([horizontal_error_m(float(r["x_m"]), float(r["y_m"]), float(r["z_m"]), place) for r in rows])
+    pos = np.array([[float(r[k]) for k in ("x_m", "y_m", "z_m")] for r in rows]).reshape(-1, 3)
+    if motion:
+        path = np.loadtxt(motion, delimiter=",", ndmin=2)
+        pos = pos - path[np.clip(np.round(t / 0.1).astype(int), 0, len(path) - 1), 1:] + pymap3d.geodetic2ecef(
+            place.lat_deg, place.lon_deg, place.height_m)
+    err = np.array([horizontal_error_m(*p, place) for p in pos])
     states = [r.get("state", "nominal") for r in rows]
     if not rows:
         return {"fixes": 0}
@@ -169,7 +182,8 @@ def prepare(case: Case, nav_path: str | Path, work: Path) -> Path:
     scenes = work / "scenes"
     scenes.mkdir(parents=True, exist_ok=True)
     stem = f"{case.date.replace('/', '').replace(',', 'T').replace(':', '')}-{case.fs_hz / 1e6:g}M-{case.duration_s:g}s"
-    legit = render(nav_path, scenes / f"{case.place.name}-{stem}.bin", case.place, case)
+    trip = f"-{Path(case.motion).stem}" if case.motion else ""
+    legit = render(nav_path, scenes / f"{case.place.name}{trip}-{stem}.bin", case.place, case, case.motion)
     spoof = None
     if case.attacker:
         claimed = claimed_place(case)
@@ -178,14 +192,19 @@ def prepare(case: Case, nav_path: str | Path, work: Path) -> Path:
     return mix(legit, spoof, work / f"{case.tag}.bin", case)
 
 
-def run_case(case: Case, nav_path: str | Path, work: Path, defense: str = "full", assisted: bool = True) -> dict:
-    """Prepare a case, run `semperfi run` on it in-process, and score it."""
+def run_case(case: Case, nav_path: str | Path, work: Path, defense: str = "full", assisted: bool = True,
+             imu_csv: str | Path | None = None) -> dict:
+    """Prepare a case, run `semperfi run` on it in-process (with --imu TRACK.csv when given), and score it."""
+    import functools
+
     from ..cli import _receiver_config
     from ..defense.defended import DefendedReceiver
+    from ..defense.imu_track import read_imu_csv
     from ..receiver.run import run_file
     data = prepare(case, nav_path, work)
-    out = work / f"{case.tag}-{defense}{'' if assisted else '-unassisted'}"
+    out = work / f"{case.tag}-{defense}{'' if assisted else '-unassisted'}{'-imu' if imu_csv else ''}"
+    receiver = functools.partial(DefendedReceiver, imu_track=read_imu_csv(imu_csv) if imu_csv else None)
     run_file(data, None, None, None, _receiver_config(None, [f'defense.mode="{defense}"']), out,
-             str(nav_path) if assisted else None, receiver_factory=DefendedReceiver)
+             str(nav_path) if assisted else None, receiver_factory=receiver)
     return {"case": case.tag, "defense": defense, "assisted": assisted,
-            **score(out / "fixes.csv", case.place)}
+            **score(out / "fixes.csv", case.place, motion=case.motion)}

@@ -206,7 +206,8 @@ def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: Dopple
     excised = 0
     if excise:
         x, excised = excise_narrowband(x, n_ms)
-    t = np.arange(need) / fs_hz
+    t_block = np.arange(n_ms) / fs_hz
+    t_starts = np.arange(coherent_ms * noncoherent) * n_ms / fs_hz
     dopplers = grid.values_hz()
     code_chips = np.arange(n_ms) * CA_CHIP_RATE_HZ / fs_hz
     thr_theory = _threshold(pfa, dopplers.size * n_ms, noncoherent)
@@ -217,8 +218,10 @@ def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: Dopple
     # per non-coherent block instead of one per millisecond.
     spectra = np.empty((dopplers.size, noncoherent, n_ms), dtype=np.complex64)
     for i, f in enumerate(dopplers):
-        wiped = x * np.exp(-2j * np.pi * (f + if_hz) * t).astype(np.complex64)
-        blocks = scipy.fft.fft(wiped.reshape(-1, n_ms), axis=1)
+        # the carrier of one block, turned by each block's start phase: a block's exponentials, not the whole run's
+        w = -2j * np.pi * (f + if_hz)
+        carrier = (np.exp(w * t_starts)[:, None] * np.exp(w * t_block)[None, :]).astype(np.complex64)
+        blocks = scipy.fft.fft(x.reshape(-1, n_ms) * carrier, axis=1)
         spectra[i] = np.conj(blocks.reshape(noncoherent, coherent_ms, n_ms).sum(axis=1))
     result = {}
     for prn in prns:
