@@ -72,10 +72,11 @@ class DefendedReceiver:
         else unverified (they disagree, or there are too few to check). After an alarm it is spoofing_detected
         (detect only), then recovering until every PRN it uses is resolved (verified clean after cancellation, or
         examined and found to hold one signal) and its ranges pass the integrity test with redundancy to spare: a
-        mix of legitimate and spoofed ranges, or a fix that cannot be checked, is never recovered. Nor is any fix
-        while a cancellation chosen by assumption is in force (the attacker's peak taken to be the stronger one, with
-        no earlier lock or maneuver to say so): the attacker sets its own power, and if the assumption is wrong the
-        legitimate signals are the ones cancelled and every range left is the attacker's -- consistent, and wrong."""
+        mix of legitimate and spoofed ranges, or a fix that cannot be checked, is never recovered. A PRN whose
+        cancelled peak was chosen by assumption (the stronger one, with no earlier lock or maneuver to say so) is not
+        resolved: the attacker sets its own power, and if the assumption is wrong the legitimate signal is the one
+        cancelled and the range left is the attacker's -- when every PRN is so, consistent with the others, and
+        wrong."""
         g = self.guard
         if g.alarm_t_s is None:
             state = "nominal" if trusted(fix.raim) else "unverified"
@@ -84,8 +85,7 @@ class DefendedReceiver:
         else:
             checked = (trusted(fix.raim) and fix.n_sats - 4 >= g.d["min_redundancy"]
                        and fix.residual_rms_m < MAX_RECOVERED_RESIDUAL_M)
-            known = not (g.guessed & set(g.cancel_started))
-            state = "recovered" if checked and known and all(g.resolved(p) for p in fix.prns) else "recovering"
+            state = "recovered" if checked and all(g.resolved(p) for p in fix.prns) else "recovering"
         if state == "recovered" and self.first_recovered_t_s is None:
             self.first_recovered_t_s = fix.t_rx_s
             if self.events is not None:

@@ -11,7 +11,7 @@ import numpy as np
 from ..receiver.acquisition import DopplerGrid, acquire
 from .canceller import Canceller, CancellerConfig, caf_amplitude, refine_peak
 from .detector import Alarm, DetectorConfig, SpoofingDetector, auxiliary_peaks, chips_apart
-from .policy import Choice, by_power, choose, parse_policy
+from .policy import POWER_MARGIN_DB, Choice, by_power, choose, parse_policy
 
 WINDOW_MS = 40     # samples kept for examinations: acquisition looks at the first 10 ms, the two-path test at the
                    # first 20 (all 40 once the attack is known: the highest sensitivity)
@@ -130,7 +130,7 @@ class SpoofGuard:
         """Cancel the attacker's peak; when that would be a guess and a maneuver is still to come, wait for it."""
         choice = choose(alarm, self.policy, self.policy_prns)
         if choice is not None and choice.guessed and self.attacker_stronger is not None:
-            choice = by_power(alarm, self.attacker_stronger, self._inference)
+            choice = by_power(alarm, self.attacker_stronger, self._inference) or choice
         if choice is not None and choice.guessed and self.maneuver is not None and self.maneuver.pending(t_s):
             self.awaiting[alarm.prn] = alarm
             self._emit("identification_pending", t_s, prn=alarm.prn, maneuver_s=self.maneuver.window_s)
@@ -167,8 +167,10 @@ class SpoofGuard:
             other = (prn, 1 - adversarial[0].peak_id) if len(adversarial) == 1 else None
             if other in ident.followers:
                 decided[prn] = (ident.followers[(prn, adversarial[0].peak_id)], ident.followers[other])
-        relation = {adv.peak.metric > legit.peak.metric for adv, legit in decided.values()}
-        if len(decided) >= 3 and len(relation) == 1:
+        # the followers' C/N0 over the whole maneuver, not one look's peak metrics, says which was the stronger
+        gaps_db = [adv.mean_cn0_dbhz() - legit.mean_cn0_dbhz() for adv, legit in decided.values()]
+        relation = {g > 0 for g in gaps_db}
+        if len(decided) >= 3 and len(relation) == 1 and min(abs(g) for g in gaps_db) >= POWER_MARGIN_DB / 2:
             self.attacker_stronger = relation.pop()
             self._inference = (f"inferred: on the {len(decided)} PRNs the maneuver decided, the attacker's peak was "
                                f"the {'stronger' if self.attacker_stronger else 'weaker'}")
@@ -249,9 +251,10 @@ class SpoofGuard:
 
     def resolved(self, prn: int) -> bool:
         """Whether a PRN is known to carry the legitimate signal only: alarmed, cancelled and verified clean with its
-        cancellation still running; or, never alarmed, examined at the highest sensitivity (after the attack became
-        known) and found to hold a single signal in the last two looks."""
-        if prn in self.gave_up:
+        cancellation still running, the cancelled peak known to be the attacker's (not assumed); or, never alarmed,
+        examined at the highest sensitivity (after the attack became known) and found to hold a single signal in the
+        last two looks."""
+        if prn in self.gave_up or (prn in self.guessed and prn in self.cancel_started):
             return False
         if prn in self.alarmed_prns:
             return prn in self.verified and prn not in self.pending_verify

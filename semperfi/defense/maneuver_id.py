@@ -40,6 +40,7 @@ class PeakFollower:
         self.t_s: list[float] = []
         self.range_m: list[float] = []
         self.doppler_hz: list[float] = []
+        self.cn0_dbhz: list[float] = []
 
     @property
     def next_sample(self) -> float:
@@ -55,6 +56,11 @@ class PeakFollower:
             self.t_s.append(float(ch.epoch_sample[i]) / self.fs_hz)
             self.range_m.append(-L1_WAVELENGTH_M * float(ch.carrier_cycles[i]))
             self.doppler_hz.append(float(ch.doppler_hz[i]))
+            self.cn0_dbhz.append(float(ch.cn0_dbhz))
+
+    def mean_cn0_dbhz(self) -> float:
+        values = [v for v in self.cn0_dbhz if np.isfinite(v)]
+        return float(np.mean(values)) if values else float("nan")
 
     def history(self) -> PeakHistory | None:
         if len(self.t_s) < 10 or not self.channel.locked:

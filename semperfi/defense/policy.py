@@ -1,5 +1,6 @@
 """Which of a PRN's two peaks is the attacker's, until the Adversarial Peak Identifier decides from a maneuver."""
 
+import math
 from dataclasses import dataclass
 
 from ..receiver.acquisition import Peak
@@ -52,9 +53,15 @@ def choose(alarm: Alarm, policy: str, prns: frozenset[int] = frozenset()) -> Cho
     return Choice(stronger, weaker, True, reason)
 
 
-def by_power(alarm: Alarm, attacker_stronger: bool, reason: str) -> Choice:
+POWER_MARGIN_DB = 2.0   # a pair closer in power than this is not told apart by one look's peak metrics
+
+
+def by_power(alarm: Alarm, attacker_stronger: bool, reason: str) -> Choice | None:
     """The attacker's peak by a power relation the maneuver established on other PRNs (not a guess: one
-    transmitter, one relation, and the attacker cannot know in advance which PRNs the maneuver leaves undecided)."""
+    transmitter, one relation, and the attacker cannot know in advance which PRNs the maneuver leaves undecided);
+    None when this pair's two peaks are too close in power to apply it."""
     main, aux = alarm.pair.main, alarm.pair.auxiliary
     stronger, weaker = (main, aux) if main.metric >= aux.metric else (aux, main)
+    if 10 * math.log10(max(stronger.metric, 1e-9) / max(weaker.metric, 1e-9)) < POWER_MARGIN_DB:
+        return None
     return Choice(stronger, weaker, False, reason) if attacker_stronger else Choice(weaker, stronger, False, reason)
