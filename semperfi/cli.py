@@ -133,17 +133,24 @@ def acquire(file, fs_hz, fmt, iq_swap, if_hz, prn_text, start_s, coherent_ms, no
 @click.option("--defense", type=click.Choice(["off", "detect", "full"]), help="SemperFi's defence (default full; off = the conventional receiver)")
 @click.option("--adversarial", help="which peak is the attacker's: auto | stronger | later | prn:LIST")
 @click.option("--set", "sets", multiple=True, metavar="SECTION.KEY=VALUE", help="override a configuration key")
-def run(file, fs_hz, fmt, iq_swap, if_hz, nav_path, out_dir, config_path, defense, adversarial, sets) -> None:
+@click.option("--imu", "imu_path", type=click.Path(dir_okay=False),
+              help="INS-only track t_s,north_m,east_m,down_m (t_s from FILE's first sample) with a maneuver in it: "
+                   "the Adversarial Peak Identifier decides which peaks are the attacker's")
+def run(file, fs_hz, fmt, iq_swap, if_hz, nav_path, out_dir, config_path, defense, adversarial, sets, imu_path) -> None:
     """Receive FILE: acquisition, tracking, navigation, PVT; fixes.csv, NMEA, GPX, GeoJSON, events.jsonl in --out."""
+    import functools
+
     from .defense.defended import DefendedReceiver
+    from .defense.imu_track import read_imu_csv
     from .receiver.run import run_file
 
     sets = list(sets) + [f'defense.mode="{defense}"'] * bool(defense) + [f'defense.adversarial="{adversarial}"'] * bool(adversarial)
     try:
         cfg = _receiver_config(config_path, sets)
+        imu = read_imu_csv(imu_path) if imu_path else None
         summary = run_file(file, _sample_format(fmt, iq_swap), fs_hz, if_hz, cfg, out_dir, nav_path,
                            live=sys.stderr.isatty(),
-                           receiver_factory=DefendedReceiver)
+                           receiver_factory=functools.partial(DefendedReceiver, imu_track=imu))
     except (ValueError, OSError) as exc:
         _fail(str(exc))
     _print_run_summary(summary)

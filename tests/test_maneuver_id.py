@@ -53,3 +53,15 @@ def test_a_weaker_attacker_is_identified_by_the_maneuver_and_the_true_trajectory
     assert len(errors.get("recovered", [])) >= 20, errors.keys()
     assert np.mean(errors["recovered"]) < 5.0
     assert max(errors.get("recovered", []) + errors.get("nominal", [])) < 10.0
+
+
+def test_run_refuses_a_malformed_imu_track_in_one_line(tmp_path):
+    import subprocess
+    import sys
+    (tmp_path / "x.bin").write_bytes(bytes(8000))
+    (tmp_path / "ins.csv").write_text("t_s,north_m\n0,1\n")
+    r = subprocess.run([sys.executable, "-m", "semperfi.cli", "run", str(tmp_path / "x.bin"), "--fs", "2e6", "--format",
+                        "ishort", "--imu", str(tmp_path / "ins.csv"), "--out", str(tmp_path / "o")],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and r.stderr.strip().count("\n") == 0, (r.returncode, r.stderr)
+    assert "header must be t_s,north_m,east_m,down_m" in r.stderr

@@ -170,6 +170,7 @@ class SpoofGuard:
         # the followers' C/N0 over the whole maneuver, not one look's peak metrics, says which was the stronger
         gaps_db = [adv.mean_cn0_dbhz() - legit.mean_cn0_dbhz() for adv, legit in decided.values()]
         relation = {g > 0 for g in gaps_db}
+        self._emit("attacker_power", t_s, gaps_db={prn: round(g, 1) for prn, g in zip(decided, gaps_db)})
         if len(decided) >= 3 and len(relation) == 1 and min(abs(g) for g in gaps_db) >= POWER_MARGIN_DB / 2:
             self.attacker_stronger = relation.pop()
             self._inference = (f"inferred: on the {len(decided)} PRNs the maneuver decided, the attacker's peak was "

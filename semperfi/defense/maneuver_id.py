@@ -39,7 +39,7 @@ class PeakFollower:
         self.channel = Channel(prn, fs_hz, if_hz, st, FOLLOW_LOOP)
         self.t_s: list[float] = []
         self.range_m: list[float] = []
-        self.doppler_hz: list[float] = []
+        self.carrier_range_m: list[float] = []
         self.cn0_dbhz: list[float] = []
 
     @property
@@ -54,8 +54,8 @@ class PeakFollower:
                 continue
             i = ms % ch.HISTORY_MS
             self.t_s.append(float(ch.epoch_sample[i]) / self.fs_hz)
-            self.range_m.append(-L1_WAVELENGTH_M * float(ch.carrier_cycles[i]))
-            self.doppler_hz.append(float(ch.doppler_hz[i]))
+            self.range_m.append(SPEED_OF_LIGHT_M_S * (float(ch.epoch_sample[i]) / self.fs_hz - ms * 1e-3))
+            self.carrier_range_m.append(-L1_WAVELENGTH_M * float(ch.carrier_cycles[i]))
             self.cn0_dbhz.append(float(ch.cn0_dbhz))
 
     def mean_cn0_dbhz(self) -> float:
@@ -65,7 +65,8 @@ class PeakFollower:
     def history(self) -> PeakHistory | None:
         if len(self.t_s) < 10 or not self.channel.locked:
             return None
-        return PeakHistory(self.prn, self.peak_id, np.array(self.t_s), np.array(self.range_m), np.array(self.doppler_hz))
+        # the range is the integral of the Doppler, to millimetres: the loop's noisy Doppler adds nothing to it
+        return PeakHistory(self.prn, self.peak_id, np.array(self.t_s), np.array(self.range_m))
 
     def peak_at(self, sample: int) -> Peak | None:
         """Where this peak is at an absolute sample (acquisition's convention: the chip arriving then)."""
@@ -152,8 +153,10 @@ class ManeuverIdentifier:
         self.ended = True
         t0, t1 = self.window_s
         histories = [h for h in (f.history() for f in self.followers.values()) if h is not None]
-        t = np.linspace(t0 + SETTLE_S, t1, 101)
-        los = lines_of_sight(sorted({h.prn for h in histories}), ephemeris_of, fix, t) if fix is not None else {}
-        usable = [h for h in histories if h.prn in los and h.t_s[0] <= t0 + SETTLE_S + 1.0 and h.t_s[-1] >= t1 - 1.0]
+        # the satellites' own motion over the whole span the histories cover (np.interp would hold it still beyond)
+        span = [h for h in histories if h.t_s[0] <= t0 + SETTLE_S + 1.0 and h.t_s[-1] >= t1 - 1.0]
+        t = np.linspace(min([h.t_s[0] for h in span] + [t0]), max([h.t_s[-1] for h in span] + [t1]), 201)
+        los = lines_of_sight(sorted({h.prn for h in span}), ephemeris_of, fix, t) if fix is not None else {}
+        usable = [h for h in span if h.prn in los]
         verdicts = identify_peaks(usable, los, self.track) if len(usable) >= 3 else []
         return Identification(tuple(verdicts), self.followers)
