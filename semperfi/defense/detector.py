@@ -137,6 +137,7 @@ def hidden_pair(samples: np.ndarray, fs_hz: float, if_hz: float, main: Peak, cfg
 
 
 NEWCOMER_AFTER_S = 5.0
+NEWCOMER_MAX_WEAKER_DB = 6.0   # a newcomer further below the incumbent is as likely a legitimate signal surfacing
 
 
 @dataclass
@@ -192,6 +193,15 @@ class SpoofingDetector:
         self.tracks[prn] = [tr for tr in known if tr in matched or t_s - tr.t_s < 10.0]
         return matched
 
+    def predates_attack(self, prn: int) -> bool:
+        """Whether this PRN's peak, as last seen, is one the receiver had alone for a while before the first alarm:
+        a single signal is then the legitimate one. With the attacker there from the first look, no peak is."""
+        known = self.tracks.get(prn, [])
+        if self.first_alarm_s is None or not known:
+            return False
+        latest = max(tr.t_s for tr in known)
+        return any(tr.t_s == latest and self.first_alarm_s - tr.first_seen_s >= NEWCOMER_AFTER_S for tr in known)
+
     @property
     def sensitive(self) -> bool:
         """The attack is known to be present: every PRN is examined at the highest sensitivity."""
@@ -240,7 +250,14 @@ class SpoofingDetector:
                 # peak found later is more likely a legitimate signal surfacing than a new spoofer.
                 first_alarm = self.first_alarm_s if self.first_alarm_s is not None else t_s
                 settled = (first_alarm - older.first_seen_s >= NEWCOMER_AFTER_S and older.looks - newer.looks >= 3)
-                newcomer = newer.code_phase_chips if settled else None
+                # And not when the newcomer is far weaker than the incumbent: a legitimate signal surfacing from under
+                # a strong spoofer that was there from power-on looks exactly like that (seen on GPS-SDR-SIM: +10 dB
+                # from the first sample, the legitimate twins found 7 s later, cancelled as newcomers).
+                pair = pairs[0]
+                new_peak, old_peak = sorted((pair.main, pair.auxiliary), key=lambda p: chips_apart(
+                    p.code_phase_chips, newer.code_phase_chips))
+                weaker_db = 10 * np.log10(max(old_peak.metric, 1e-9) / max(new_peak.metric, 1e-9))
+                newcomer = newer.code_phase_chips if settled and weaker_db <= NEWCOMER_MAX_WEAKER_DB else None
                 alarms.append(Alarm(t_s, prn, pairs[0], newcomer))
                 if self.first_alarm_s is None:
                     self.first_alarm_s = t_s

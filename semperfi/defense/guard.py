@@ -52,6 +52,7 @@ class SpoofGuard:
         self.maneuver, self.nav_context = maneuver, nav_context
         self.awaiting: dict[int, Alarm] = {}             # alarmed PRNs whose attacker's peak the maneuver will name
         self.attacker_stronger: bool | None = None       # what the maneuver showed of the attacker's power, if clear
+        self.maneuver_legit: set[int] = set()            # PRNs whose only peak the maneuver showed to follow the motion
         self._inference = ""
         self._startup_samples = int(self.d["startup_s"] * fs_hz)
         self._held: list[np.ndarray] = []
@@ -158,15 +159,18 @@ class SpoofGuard:
             {"prn": v.prn, "peak": v.peak_id, "adversarial": v.adversarial, "decided": v.decided,
              "score": round(v.score, 2), "reason": v.reason} for v in ident.verdicts])
         now = self._seen - self.window
+        lone = {prn for prn, _ in ident.followers if prn not in self.awaiting and (prn, 1) not in ident.followers}
         for v in ident.verdicts:
-            if v.decided and v.adversarial and v.prn not in self.awaiting:
+            if v.decided and v.adversarial and v.prn in lone:
                 self.gave_up[v.prn] = "identified as the attacker's (maneuver), no legitimate twin found"
-        decided = {}   # PRN -> (attacker's follower, the other)
+            elif v.decided and v.prn in lone:
+                self.maneuver_legit.add(v.prn)
+        decided = {}   # PRN -> (attacker's follower, the other): one peak shown not to follow, its twin shown to
         for prn in self.awaiting:
-            adversarial = [v for v in ident.verdicts if v.prn == prn and v.decided and v.adversarial]
-            other = (prn, 1 - adversarial[0].peak_id) if len(adversarial) == 1 else None
-            if other in ident.followers:
-                decided[prn] = (ident.followers[(prn, adversarial[0].peak_id)], ident.followers[other])
+            verdict = {v.peak_id: v for v in ident.verdicts if v.prn == prn and v.decided}
+            if len(verdict) == 2 and verdict[0].adversarial != verdict[1].adversarial:
+                adv = 0 if verdict[0].adversarial else 1
+                decided[prn] = (ident.followers[(prn, adv)], ident.followers[(prn, 1 - adv)])
         # the followers' C/N0 over the whole maneuver, not one look's peak metrics, says which was the stronger
         gaps_db = [adv.mean_cn0_dbhz() - legit.mean_cn0_dbhz() for adv, legit in decided.values()]
         relation = {g > 0 for g in gaps_db}
@@ -259,7 +263,10 @@ class SpoofGuard:
             return False
         if prn in self.alarmed_prns:
             return prn in self.verified and prn not in self.pending_verify
-        return self.detector.single_looks.get(prn, 0) >= 2 and prn not in self.detector.close
+        single = self.detector.single_looks.get(prn, 0) >= 2 and prn not in self.detector.close
+        # one signal is the legitimate one only if it was there before the attack, or the maneuver showed it follows
+        # the vehicle: a spoofer on from power-on, its legitimate twin too weak to see, is one signal too
+        return single and (prn in self.maneuver_legit or self.detector.predates_attack(prn))
 
     def _forget_lost(self, t_s: float) -> None:
         """A PRN whose every cancellation track lost the spoofer is examined afresh: alarmed again if the spoofer is
