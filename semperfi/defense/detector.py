@@ -69,19 +69,19 @@ def chips_apart(a: float, b: float) -> float:
 
 def auxiliary_peaks(caf: Caf, cafs: dict[int, Caf], cfg: DetectorConfig, fs_hz: float) -> list[PeakPair]:
     """Auxiliary peaks in one PRN's CAF, judged against its main peak and the other PRNs' signals."""
-    if not _examinable(caf.best, caf, cafs, cfg, fs_hz):
+    if not examinable(caf.best, caf, cafs, cfg, fs_hz):
         return []
     main = caf.best
     floor_metric = main.metric * 10 ** (-cfg.sidelobe_margin_db / 10)
     pairs = []
     for p in caf.peaks[1:]:
         sep = chips_apart(p.code_phase_chips, main.code_phase_chips)
-        if sep > cfg.separation_chips and p.metric >= floor_metric and _examinable(p, caf, cafs, cfg, fs_hz):
+        if sep > cfg.separation_chips and p.metric >= floor_metric and examinable(p, caf, cafs, cfg, fs_hz):
             pairs.append(PeakPair(caf.prn, main, p, sep, "caf"))
     return pairs
 
 
-def _examinable(peak: Peak | None, caf: Caf, cafs: dict[int, Caf], cfg: DetectorConfig, fs_hz: float) -> bool:
+def examinable(peak: Peak | None, caf: Caf, cafs: dict[int, Caf], cfg: DetectorConfig, fs_hz: float) -> bool:
     return (peak is not None and peak.metric >= cfg.min_peak_thresholds * caf.threshold
             and not is_cross_talk(peak, caf, cafs, cfg, fs_hz))
 
@@ -217,7 +217,7 @@ class SpoofingDetector:
         for prn, caf in cafs.items():
             if prn in self.alarmed:      # under cancellation: the canceller's verification follows it
                 continue
-            if not _examinable(caf.best, caf, cafs, self.cfg, self.fs_hz):
+            if not examinable(caf.best, caf, cafs, self.cfg, self.fs_hz):
                 self.single_looks[prn] = 0
                 continue
             pairs = auxiliary_peaks(caf, cafs, self.cfg, self.fs_hz)

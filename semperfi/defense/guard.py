@@ -10,7 +10,7 @@ import numpy as np
 
 from ..receiver.acquisition import DopplerGrid, acquire
 from .canceller import Canceller, CancellerConfig, caf_amplitude, refine_peak
-from .detector import Alarm, DetectorConfig, SpoofingDetector, auxiliary_peaks, chips_apart
+from .detector import Alarm, DetectorConfig, SpoofingDetector, auxiliary_peaks, chips_apart, examinable
 from .policy import POWER_MARGIN_DB, Choice, by_power, choose, parse_policy
 
 WINDOW_MS = 40     # samples kept for examinations: acquisition looks at the first 10 ms, the two-path test at the
@@ -114,7 +114,8 @@ class SpoofGuard:
             self._next_full = self._seen + int(self.d["full_search_every_s"] * self.fs_hz)
         cafs = self._acquire(self._raw, prns, 0.0, self.cfg["acquisition"]["doppler_max_hz"],
                              10 if self.detector.sensitive else 5)
-        self._present |= {p for p, c in cafs.items() if c.best is not None}
+        # a strong attacker's cross-talk puts peaks on absent PRNs: examining them every look would cost the most
+        self._present |= {p for p, c in cafs.items() if examinable(c.best, c, cafs, self.detector.cfg, self.fs_hz)}
         self._last_cafs.update(cafs)
         if self.maneuver is not None and self.maneuver.due_to_start(t_s):
             self._follow_through_maneuver(cafs)
