@@ -92,6 +92,43 @@ def test_static_fix_without_assistance_is_within_5_m(static_run):
     assert all(f["state"] == "nominal" for f in fixes)
 
 
+def test_rinex_observations_read_back_by_georinex_give_the_same_fixes(static_run):
+    """observations.rnx holds raw pseudoranges on the receiver's clock: solved again with the decoded ephemerides they
+    land where the receiver's own (carrier-smoothed) fixes are, and the Doppler and C/N0 are the channels'."""
+    georinex = pytest.importorskip("georinex", reason="georinex is not installed")
+    from semperfi.gps.constants import SPEED_OF_LIGHT_M_S
+    from semperfi.receiver.chain import FALLBACK_IONO
+    from semperfi.receiver.pvt import solve
+    from semperfi.receiver.types import Observation
+
+    _, d, summary, receiver = static_run
+    obs = georinex.load(d / "out" / "observations.rnx")
+    fixes = read_fixes(d / "out")
+    assert obs.time.size == len(fixes) == summary.stats.n_fixes
+    ephemerides = {prn: dec.ephemeris for prn, dec in receiver.decoders.items() if dec.ephemeris is not None}
+    for k in (0, len(fixes) // 2, len(fixes) - 1):
+        fix = fixes[k]
+        t = obs.time.values[k]
+        tow_rx = (t - np.datetime64("1980-01-06T00:00:00")) / np.timedelta64(1, "ns") * 1e-9 % 604800.0
+        sats = [(int(sv[1:]), float(obs["C1C"].sel(sv=sv, time=t)), float(obs["D1C"].sel(sv=sv, time=t)),
+                 float(obs["S1C"].sel(sv=sv, time=t))) for sv in obs.sv.values
+                if np.isfinite(obs["C1C"].sel(sv=sv, time=t))]
+        assert {p for p, *_ in sats} == {int(p) for p in fix["prns"].split()}
+        assert all(18e6 < pr < 28e6 and abs(dop) < 6000 and 25 < cn0 < 60 for _, pr, dop, cn0 in sats), sats
+        again = solve([Observation(prn, pr, tow_rx - pr / SPEED_OF_LIGHT_M_S, dop, cn0, ephemerides[prn])
+                       for prn, pr, dop, cn0 in sats], float(fix["t_rx_s"]), int(fix["gps_week"]), FALLBACK_IONO)
+        ours = np.array([float(fix[c]) for c in ("x_m", "y_m", "z_m")])
+        assert np.linalg.norm(again.pos_ecef_m - ours) < 5.0, (k, again.pos_ecef_m - ours)
+        assert abs(again.clock_bias_m - float(fix["clock_bias_m"])) < 5.0
+    from semperfi.gps.constants import L1_WAVELENGTH_M
+    for sv in obs.sv.values:   # carrier phase has the sign of the range: over the run it moves as the code does
+        c, l = obs["C1C"].sel(sv=sv).values, obs["L1C"].sel(sv=sv).values
+        ok = np.isfinite(c) & np.isfinite(l)
+        assert ok.mean() > 0.9, sv
+        code_m, phase_m = c[ok][-1] - c[ok][0], L1_WAVELENGTH_M * (l[ok][-1] - l[ok][0])
+        assert abs(code_m - phase_m) < 10.0, (sv, code_m, phase_m)
+
+
 def test_assisted_static_fix_is_within_5_m_and_quick(tmp_path, brdc_path):
     simulate(tmp_path / "a.bin", f'constellation.rinex="{brdc_path}"', 'time.start="2022-01-01T00:00:27"',
              duration=18.0)

@@ -20,14 +20,15 @@ MAX_RECOVERED_RESIDUAL_M = 30.0
 
 class DefendedReceiver:
     def __init__(self, cfg: dict, fs_hz: float, if_hz: float = 0.0, assisted=None, on_fix=None, events=None,
-                 week_hint: int | None = None, imu_track=None):
+                 week_hint: int | None = None, imu_track=None, on_observations=None):
         """imu_track: an INS-only track (identifier.ImuTrack) with a maneuver in it, for the Adversarial Peak
         Identifier on a recording."""
         self.on_fix, self.events = on_fix, events
         maneuver = ManeuverIdentifier(imu_track, fs_hz, if_hz) if imu_track is not None else None
         self.guard = SpoofGuard(cfg, fs_hz, if_hz, events, on_cancel=self._drop_if_tracking, maneuver=maneuver,
                                 nav_context=lambda: (self.inner.ephemeris_at, self.inner.last_fix))
-        self.inner = Receiver(cfg, fs_hz, if_hz, assisted, on_fix=self._label, events=events, week_hint=week_hint)
+        self.inner = Receiver(cfg, fs_hz, if_hz, assisted, on_fix=self._label, events=events, week_hint=week_hint,
+                              on_observations=on_observations)
         self.first_recovered_t_s: float | None = None
 
     @property

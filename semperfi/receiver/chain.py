@@ -2,6 +2,7 @@
 observables -> PVT, with every step reported as an event and every fix written as it is computed.
 """
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -12,6 +13,7 @@ from ..gps.time import GpsTime, wrap_week_s
 from .acquisition import Caf, DopplerGrid, acquire, is_cross_correlation
 from .navigation import AssistedNav, NavDecoder
 from .pvt import solve
+from .rinex_obs import ObsEpoch
 from .integrity import IntegrityConfig, SigmaModel
 from .tracking import NEXT_SAMPLE, Channel, LoopConfig, initial_state
 from .types import Fix, Observation
@@ -48,9 +50,12 @@ class Receiver:
     """Feed it consecutive chunks of complex samples; it calls on_fix for every fix and events.emit for events."""
 
     def __init__(self, cfg: dict, fs_hz: float, if_hz: float = 0.0, assisted: AssistedNav | None = None,
-                 on_fix=None, events=None, week_hint: int | None = None):
+                 on_fix=None, events=None, week_hint: int | None = None, on_observations=None):
+        """on_observations(epoch: rinex_obs.ObsEpoch, pos_ecef_m) gets the raw observables of every epoch that made
+        a fix, timed by the receiver's clock (for RINEX)."""
         self.cfg, self.fs_hz, self.if_hz = cfg, float(fs_hz), float(if_hz)
         self.assisted, self.on_fix, self.events = assisted, on_fix, events
+        self.on_observations = on_observations
         self.week_hint = week_hint
         a, t = cfg["acquisition"], cfg["tracking"]
         self.prns = list(a["prns"]) or list(range(1, 33))
@@ -300,8 +305,21 @@ class Receiver:
         if self.stats.first_fix_t_rx_s is None:
             self.stats.first_fix_t_rx_s = fix.t_rx_s
             self._emit("first_fix", fix.t_rx_s, lat_deg=fix.lat_deg, lon_deg=fix.lon_deg, n_sats=fix.n_sats)
+        if self.on_observations is not None:
+            self.on_observations(self._obs_epoch(fix, sample, t_rx, raw), fix.pos_ecef_m)
         if self.on_fix is not None:
             self.on_fix(fix)
+
+    def _obs_epoch(self, fix: Fix, sample: float, t_rx: float, raw) -> ObsEpoch:
+        """The epoch's raw (unsmoothed) observables on the receiver's clock. RINEX carrier phase has the sign of the
+        range (it grows as the satellite recedes), the opposite of the integrated Doppler."""
+        week = fix.gps_week + round((fix.gps_tow_s - t_rx) / SECONDS_PER_WEEK)   # the clock may sit across a rollover
+        sats = {}
+        for prn, t_sv, dop, cn0, _eph, ch in raw:
+            cycles = ch.carrier_cycles_at(sample)
+            sats[prn] = (SPEED_OF_LIGHT_M_S * wrap_week_s(t_rx - t_sv), math.nan if cycles is None else -cycles,
+                         dop, cn0)
+        return ObsEpoch(week, t_rx, sats)
 
     def channel_rows(self) -> list[ChannelRow]:
         rows = []

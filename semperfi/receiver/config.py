@@ -37,7 +37,7 @@ DEFAULTS: dict = {
         "atmosphere_m": 0.5,        # residual atmosphere at zenith (1 sigma), / sin(elevation)
     },
     "output": {
-        "formats": ["csv", "nmea", "gpx", "geojson"],
+        "formats": ["csv", "nmea", "gpx", "geojson", "rinex"],
     },
 }
 
@@ -68,5 +68,5 @@ DOMAINS: dict = {
     "integrity.integration_s": (0.001, 0.02),
     "integrity.floor_m": (0.0, 1000.0),
     "integrity.atmosphere_m": (0.0, 1000.0),
-    "output.formats": ("each", "csv", "nmea", "gpx", "geojson"),
+    "output.formats": ("each", "csv", "nmea", "gpx", "geojson", "rinex"),
 }

@@ -36,9 +36,10 @@ from ..gps.geometry import enu_rotation
 from ..gps.time import GPS_EPOCH
 from .types import Fix
 from .integrity import RAIM_STATES
+from .rinex_obs import ObsEpoch, RinexObsWriter
 
 DEFAULT_LEAP_S = 18               # GPS - UTC since 2017-01-01; the receiver passes the broadcast value once decoded
-FORMATS = ("csv", "nmea", "gpx", "geojson")
+FORMATS = ("csv", "nmea", "gpx", "geojson", "rinex")
 KNOTS_PER_M_S = 3600.0 / 1852.0   # the international nautical mile is exactly 1852 m
 COURSE_MIN_SPEED_M_S = 0.1        # below this the direction of a noisy velocity means nothing: course left empty
 
@@ -332,7 +333,8 @@ class OutputWriter:
     """Writes every fix to the chosen formats as it arrives, and events to events.jsonl; flushes each write.
 
     Files in out_dir: fixes.csv, fixes.nmea (GGA + RMC), fixes.gpx (GPX 1.1 track), fixes.geojson
-    (FeatureCollection of Points, one Feature per line), events.jsonl. All are complete documents after every
+    (FeatureCollection of Points, one Feature per line), observations.rnx (RINEX 3 C1C L1C D1C S1C, through
+    write_observations), events.jsonl. All are complete documents after every
     write; close() (or leaving the with-block, also on an exception) only closes the files.
     leap_s (GPS - UTC, s) is used for NMEA/GPX/GeoJSON times; set it when the broadcast value is decoded.
     """
@@ -356,6 +358,7 @@ class OutputWriter:
         self._nmea_file: BinaryIO | None = None
         self._gpx: _ClosedDocument | None = None
         self._geojson: _ClosedDocument | None = None
+        self._rinex: RinexObsWriter | None = None
         self._closed = False
         try:
             self.events = EventLog(self.out_dir / "events.jsonl", fsync=fsync)
@@ -375,6 +378,9 @@ class OutputWriter:
             if "geojson" in self.formats:
                 self.paths["geojson"] = self.out_dir / "fixes.geojson"
                 self._geojson = _ClosedDocument(self.paths["geojson"], _GEOJSON_HEADER, _GEOJSON_TRAILER, fsync)
+            if "rinex" in self.formats:
+                self.paths["rinex"] = self.out_dir / "observations.rnx"
+                self._rinex = RinexObsWriter(self.paths["rinex"])
         except BaseException:
             self.close()
             raise
@@ -411,6 +417,11 @@ class OutputWriter:
             self._geojson.append(("\n" if self.n_fixes == 0 else ",\n") + feature)
         self.n_fixes += 1
 
+    def write_observations(self, epoch: ObsEpoch, approx_xyz_m) -> None:
+        """Append one epoch of observables to observations.rnx (when that format is chosen)."""
+        if self._rinex is not None:
+            self._rinex.write(epoch, tuple(float(v) for v in approx_xyz_m))
+
     def emit(self, kind: str, t_rx_s: float, **fields: Any) -> None:
         """Log an event to events.jsonl (see EventLog.emit)."""
         self.events.emit(kind, t_rx_s, **fields)
@@ -420,7 +431,8 @@ class OutputWriter:
         if self._closed:
             return
         self._closed = True
-        for closer in (getattr(self, "events", None), self._csv_file, self._nmea_file, self._gpx, self._geojson):
+        for closer in (getattr(self, "events", None), self._csv_file, self._nmea_file, self._gpx, self._geojson,
+                       self._rinex):
             if closer is not None:
                 closer.close()
 

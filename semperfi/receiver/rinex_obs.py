@@ -53,9 +53,10 @@ def _value(v: float) -> str:
 
 def write_header(f: TextIO, first: ObsEpoch, marker: str = "SEMPERFI", approx_xyz_m=(0.0, 0.0, 0.0)) -> None:
     t = _gps_datetime(first.gps_week, first.gps_tow_s)
-    now = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%d %H%M%S UTC")
+    # The file's date is the first observation's, not the wall clock's: the same input gives the same file.
+    made = t.strftime("%Y%m%d %H%M%S GPS")
     f.write(_line(f"{3.04:9.2f}{'':11s}{'O':1s}{'':19s}{'G':1s}", "RINEX VERSION / TYPE"))
-    f.write(_line(f"{'semperfi ' + __version__:<20.20s}{'':20s}{now:<20.20s}", "PGM / RUN BY / DATE"))
+    f.write(_line(f"{'semperfi ' + __version__:<20.20s}{'':20s}{made:<20.20s}", "PGM / RUN BY / DATE"))
     f.write(_line(marker[:60], "MARKER NAME"))
     f.write(_line(f"{'':20s}{'':40s}", "OBSERVER / AGENCY"))
     f.write(_line(f"{'':20s}{'SEMPERFI SDR':<20s}{__version__:<20.20s}", "REC # / TYPE / VERS"))
@@ -78,17 +79,39 @@ def write_epoch(f: TextIO, epoch: ObsEpoch) -> None:
         f.write(f"G{prn:02d}" + "".join(_value(v) for v in epoch.sats[prn]).rstrip() + "\n")
 
 
+class RinexObsWriter:
+    """Streams epochs into a RINEX observation file as the receiver produces them: the header goes out with the
+    first epoch (it needs the first time and an approximate position), every epoch is flushed, so a run cut short
+    leaves a readable file."""
+
+    def __init__(self, path: str | os.PathLike, marker: str = "SEMPERFI"):
+        self.path, self.marker = Path(path), marker
+        self._f: TextIO | None = None
+        self.n_epochs = 0
+
+    def write(self, epoch: ObsEpoch, approx_xyz_m=(0.0, 0.0, 0.0)) -> None:
+        if self._f is None:
+            self._f = open(self.path, "w", encoding="ascii")
+            write_header(self._f, epoch, self.marker, approx_xyz_m)
+        write_epoch(self._f, epoch)
+        self._f.flush()
+        self.n_epochs += 1
+
+    def close(self) -> None:
+        if self._f is not None:
+            self._f.close()
+            self._f = None
+
+
 def write_rinex_obs(path: str | os.PathLike, epochs: Iterable[ObsEpoch], marker: str = "SEMPERFI",
                     approx_xyz_m=(0.0, 0.0, 0.0)) -> Path:
     """Write every epoch (GPS time order, as the receiver produces them) to `path`; returns the path."""
-    path = Path(path)
-    epochs = iter(epochs)
-    first = next(epochs, None)
-    if first is None:
-        raise ValueError("no observation epochs to write into RINEX")
-    with open(path, "w", encoding="ascii") as f:
-        write_header(f, first, marker, approx_xyz_m)
-        write_epoch(f, first)
+    writer = RinexObsWriter(path, marker)
+    try:
         for epoch in epochs:
-            write_epoch(f, epoch)
-    return path
+            writer.write(epoch, approx_xyz_m)
+    finally:
+        writer.close()
+    if writer.n_epochs == 0:
+        raise ValueError("no observation epochs to write into RINEX")
+    return writer.path

@@ -58,7 +58,7 @@ def run_file(path: str | Path, fmt: str | None, fs_hz: float | None, if_hz: floa
     t0 = time.perf_counter()
     with OutputWriter(out_dir, cfg["output"]["formats"]) as out:
         receiver = receiver_factory(cfg, reader.fs_hz, reader.if_hz, assisted, on_fix=out.write, events=out,
-                                    week_hint=_week_hint(reader, assisted))
+                                    week_hint=_week_hint(reader, assisted), on_observations=out.write_observations)
         if receiver_hook is not None:
             receiver_hook(receiver)
         if reader.truncated_bytes:
