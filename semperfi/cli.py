@@ -69,7 +69,7 @@ def _parse_prns(text: str) -> list[int]:
 @main.command()
 @click.argument("file", type=click.Path(dir_okay=False))
 @click.option("--fs", "fs_hz", type=float, help="sample rate, Hz (else from the SigMF sidecar)")
-@click.option("--format", "fmt", help="ibyte | ishort | gr_complex | byte | short (real, with --if) | a SigMF "
+@click.option("--format", "fmt", help="ibyte | ishort | gr_complex | byte | short (real, with --if) | packed real2 iq2 real2sm iq2sm real4 iq4 | a SigMF "
               "datatype (else from the SigMF sidecar)")
 @click.option("--iq-swap", is_flag=True, help="the front end stores Q before I (spectral inversion)")
 @click.option("--if", "if_hz", type=float, help="intermediate frequency, Hz")
@@ -123,7 +123,7 @@ def acquire(file, fs_hz, fmt, iq_swap, if_hz, prn_text, start_s, coherent_ms, no
 @main.command()
 @click.argument("file", type=click.Path(dir_okay=False))
 @click.option("--fs", "fs_hz", type=float, help="sample rate, Hz (else from the SigMF sidecar)")
-@click.option("--format", "fmt", help="ibyte | ishort | gr_complex | byte | short (real, with --if) | a SigMF "
+@click.option("--format", "fmt", help="ibyte | ishort | gr_complex | byte | short (real, with --if) | packed real2 iq2 real2sm iq2sm real4 iq4 | a SigMF "
               "datatype (else from the SigMF sidecar)")
 @click.option("--iq-swap", is_flag=True, help="the front end stores Q before I (spectral inversion)")
 @click.option("--if", "if_hz", type=float, help="intermediate frequency, Hz")
@@ -160,7 +160,7 @@ def run(file, fs_hz, fmt, iq_swap, if_hz, nav_path, out_dir, config_path, defens
 @click.argument("file", type=click.Path(dir_okay=False))
 @click.option("-o", "--out", "out_path", required=True, type=click.Path(dir_okay=False), help="cleaned IQ file")
 @click.option("--fs", "fs_hz", type=float, help="sample rate, Hz (else from the SigMF sidecar)")
-@click.option("--format", "fmt", help="ibyte | ishort | gr_complex | byte | short (real, with --if) | a SigMF "
+@click.option("--format", "fmt", help="ibyte | ishort | gr_complex | byte | short (real, with --if) | packed real2 iq2 real2sm iq2sm real4 iq4 | a SigMF "
               "datatype (else from the SigMF sidecar)")
 @click.option("--iq-swap", is_flag=True, help="the front end stores Q before I (spectral inversion)")
 @click.option("--if", "if_hz", type=float, help="intermediate frequency, Hz")

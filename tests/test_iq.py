@@ -43,7 +43,8 @@ def test_unknown_format_name_lists_the_valid_ones():
     message = _one_line_value_error(excinfo)
     for name in ("ibyte", "ishort", "gr_complex", "cfloat"):
         assert name in message, f"{name!r} missing from {message!r}"
-    assert set(FORMAT_NAMES) == {"ibyte", "ishort", "gr_complex", "cfloat", "byte", "short", "float"}
+    assert set(FORMAT_NAMES) == {"ibyte", "ishort", "gr_complex", "cfloat", "byte", "short", "float",
+                                 "real2", "iq2", "real2sm", "iq2sm", "real4", "iq4"}
 
 
 # --- writing and the byte layout ---------------------------------------------------------------------------------
@@ -348,7 +349,7 @@ def test_read_sigmf_meta_direct(tmp_path):
 from semperfi.iq import FORMATS, decode_items, encode_samples, with_iq_swap  # noqa: E402
 
 
-@pytest.mark.parametrize("fmt", FORMATS, ids=lambda f: f.name)
+@pytest.mark.parametrize("fmt", [f for f in FORMATS if not f.bits], ids=lambda f: f.name)
 def test_every_format_round_trips_within_half_a_step(fmt):
     x = _noise(500, 20.0).astype(np.complex64)
     items, clipped = encode_samples(x, fmt)
@@ -391,3 +392,79 @@ def test_foreign_sigmf_recording_with_ri16_and_rf_centre_frequency(tmp_path):
     r = open_iq(data)
     assert (r.fmt.name, r.fs_hz, r.if_hz) == ("short", 16.368e6, 4.092e6)
     assert np.array_equal(r.read(0, 3), np.array([-8, -7, -6], dtype=np.complex64))
+
+
+# --- packed 2- and 4-bit samples -----------------------------------------------------------------------------------
+
+PACKED_BYTES = np.array([0b00011011, 0xF1], dtype=np.uint8)
+PACKED_VALUES = {   # by hand from the bit layouts in semperfi.iq.formats
+    "real2": [-1, -3, 3, 1, 3, 1, -1, -1],              # two's complement v -> 2v+1, lowest bits first
+    "iq2": [-1 - 3j, 3 + 1j, 3 + 1j, -1 - 1j],
+    "real2sm": [1, 3, -1, -3, -3, -3, 1, 3],            # sign|magnitude, highest bits first
+    "iq2sm": [1 + 3j, -1 - 3j, -3 - 3j, 1 + 3j],
+    "real4": [3, -9, -1, 3],                            # nibbles, high first: 0x1 -> 3, 0xB = -5 -> -9
+    "iq4": [3 - 9j, -1 + 3j],
+}
+
+
+@pytest.mark.parametrize("name", sorted(PACKED_VALUES))
+def test_packed_values_decode_as_their_front_ends_define_them(name):
+    assert decode_items(PACKED_BYTES, format_by_name(name)).tolist() == PACKED_VALUES[name]
+
+
+@pytest.mark.parametrize("name", ["real2", "iq2sm", "iq4"])
+def test_packed_files_read_at_any_sample_in_chunks_and_from_a_pipe(tmp_path, name):
+    import io
+    from semperfi.iq.stream import read_stream
+    fmt = format_by_name(name)
+    raw = np.random.default_rng(7).integers(0, 256, 1001, dtype=np.uint8)
+    path = tmp_path / "p.bin"
+    raw.tofile(path)
+    whole = decode_items(raw, fmt)
+    reader = IqReader(path, fmt, 4e6, chunk_samples=333, if_hz=0.0 if fmt.is_complex else 1e6)
+    assert (reader.n_samples, reader.truncated_bytes) == (1001 * fmt.samples_per_block, 0)
+    assert np.array_equal(reader.read(5, 17), whole[5:22]) and np.array_equal(reader.read(3, 1), whole[3:4])
+    assert np.array_equal(np.concatenate(list(reader)), whole)
+    assert np.array_equal(read_stream(io.BytesIO(raw.tobytes()), fmt, 50, skip_samples=7), whole[7:57])
+    with pytest.raises(ValueError, match="packed"):
+        encode_samples(whole, fmt)
+
+
+@pytest.mark.parametrize("name", ["real2sm", "iq2"])
+def test_two_bit_recording_of_gps_acquires_at_the_truths_code_phase(tmp_path, name):
+    """A simulated scene quantised to 2 bits as a low-bit front end does (thresholds at one sigma), real at an IF or
+    complex: the satellites come out at the simulator's code phases."""
+    from semperfi.gps.constants import CA_CHIP_RATE_HZ
+    from semperfi.receiver.acquisition import DopplerGrid, acquire
+    from semperfi.sim.run import simulate_to_file
+    from semperfi.sim.scenario import load_scenario
+    from semperfi.sim.truth import read_signal_truth, truth_paths
+
+    fs, if_hz = 4e6, 1.25e6
+    cfg = load_scenario(None, [f"signal.fs_hz={fs}", "time.duration_s=0.05", 'signal.format="gr_complex"',
+                               "constellation.max_satellites=6", "constellation.cn0_dbhz=50"])
+    simulate_to_file(cfg, tmp_path / "s.bin")
+    x = IqReader(tmp_path / "s.bin", "gr_complex", fs).read(0, int(fs * 0.05))
+    fmt = format_by_name(name)
+    if not fmt.is_complex:
+        x = np.sqrt(2) * (x * np.exp(2j * np.pi * if_hz * np.arange(len(x)) / fs)).real
+    levels = np.stack([x.real, x.imag], 1).ravel() if fmt.is_complex else x.real
+    sigma = levels.std()
+    negative, big = levels < 0, np.abs(levels) > sigma
+    fields = (negative.astype(np.uint8) << 1) | big if fmt.sign_magnitude else \
+        np.where(negative, np.where(big, 2, 3), np.where(big, 1, 0)).astype(np.uint8)   # v in {-2,-1,0,1}
+    fields = fields.reshape(-1, 4)
+    order = [3, 2, 1, 0] if fmt.msb_first else [0, 1, 2, 3]
+    packed = sum(fields[:, k].astype(np.uint8) << (2 * order[k]) for k in range(4)).astype(np.uint8)
+    packed.tofile(tmp_path / "p.bin")
+    samples = IqReader(tmp_path / "p.bin", fmt, fs, if_hz=0.0 if fmt.is_complex else if_hz).read(0, len(x))
+    cafs = acquire(samples, fs, range(1, 33), DopplerGrid(0.0, 5000.0, 250.0), 0.0 if fmt.is_complex else if_hz,
+                   coherent_ms=5, noncoherent=4)
+    truth = {int(r["prn"]): r for r in read_signal_truth(truth_paths(tmp_path / "s.bin")["signals.csv"])
+             if r["t_rx_s"] == 0.0}
+    found = {prn: c.best for prn, c in cafs.items() if c.best is not None}
+    assert set(truth) <= set(found), (sorted(truth), sorted(found))
+    for prn, r in truth.items():
+        d = (found[prn].code_phase_chips - r["code_phase_chips"] + 511.5) % 1023 - 511.5
+        assert abs(d) < 0.3, (prn, d)
+        assert abs(found[prn].doppler_hz - r["doppler_hz"]) < 200.0

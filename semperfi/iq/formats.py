@@ -2,7 +2,12 @@
 datatypes name them (`ci16_le`, `ri8`, `cu8`, ...).
 
 Complex formats store one sample as I then Q; real formats store one real sample of a signal at an IF (GNSS-SDR's
-`byte`/`short`, PocketSDR's "I" sampling). Decoding gives complex64 with the raw values (no normalisation, as
+`byte`/`short`, PocketSDR's "I" sampling). Packed formats hold several 2- or 4-bit values per byte, as low-bit front
+ends (MAX2769-class) write them: `real2`/`iq2` are GNSS-SDR's Two_Bit_Packed_File_Signal_Source (two's complement
+value v -> 2v+1, i.e. -3 -1 1 3; the first value in the byte's lowest bits), `real2sm`/`iq2sm` sign-magnitude (sign
+bit then magnitude bit, 1 = negative; -> +-1, +-3; the first value in the highest bits, the order a serial
+sign/magnitude interface shifts them in), `real4`/`iq4` 4-bit two's complement nibbles (v -> 2v+1, high nibble
+first; a complex sample is one byte, I in the high nibble). Decoding gives complex64 with the raw values (no normalisation, as
 GNSS-SDR does; unsigned integers are centred on their mid-scale, as rtl_sdr's uint8 are). A real sample decodes to
 x + 0j at its IF: correlating it with a complex carrier at +IF picks the upper of its two spectral images, as
 SoftGNSS does, so the chain needs no other change (the image at -IF is 2 IF away from any Doppler searched).
@@ -10,6 +15,7 @@ SoftGNSS does, so the chain needs no other change (the image at -IF is 2 IF away
 
 from __future__ import annotations
 
+import functools
 import math
 import numbers
 from dataclasses import dataclass, replace
@@ -26,15 +32,28 @@ class SampleFormat:
     sigmf_datatype: str       # SigMF core:datatype
     is_complex: bool = True   # False: real samples at an IF
     iq_swapped: bool = False  # the front end stores Q before I (a spectrally inverted signal)
+    bits: int = 0             # packed formats: bits per value (2 or 4), several values per byte; 0 = whole items
+    sign_magnitude: bool = False   # packed values are sign|magnitude rather than two's complement
+    msb_first: bool = False   # packed: the first value sits in the byte's highest bits
 
     @property
     def unswapped(self) -> SampleFormat:
         return replace(self, iq_swapped=False)
 
     @property
-    def items_per_sample(self) -> int:
-        """2 for interleaved integers (I, Q), 1 for complex floats and for real samples."""
-        return self.bytes_per_sample // self.item_dtype.itemsize
+    def samples_per_block(self) -> int:
+        """Samples in the smallest whole-byte unit: 1, or 2-4 for packed formats."""
+        return 8 // (self.bits * (2 if self.is_complex else 1)) if self.bits else 1
+
+    @property
+    def block_bytes(self) -> int:
+        """Bytes of that unit (one sample's bytes; one byte for packed formats)."""
+        return 1 if self.bits else self.bytes_per_sample
+
+    @property
+    def items_per_block(self) -> int:
+        """Stored items per block: 2 for interleaved integers (I, Q), 1 for complex floats, real and packed."""
+        return self.block_bytes // self.item_dtype.itemsize
 
     @property
     def is_integer(self) -> bool:
@@ -72,11 +91,20 @@ _SIGMF_ONLY = tuple(_sigmf_format(d) for d in (
     "cu8", "ci16_be", "cu16_le", "cu16_be", "ci32_le", "ci32_be", "cf32_be", "cf64_le", "cf64_be",
     "ru8", "ri16_be", "ru16_le", "ru16_be", "ri32_le", "ri32_be", "rf32_be", "rf64_le", "rf64_be"))
 
-FORMATS: tuple[SampleFormat, ...] = (IBYTE, ISHORT, GR_COMPLEX, BYTE, SHORT, FLOAT) + _SIGMF_ONLY
+_U8 = np.dtype("u1")
+PACKED = (SampleFormat("real2", _U8, 1, "", is_complex=False, bits=2),
+          SampleFormat("iq2", _U8, 1, "", bits=2),
+          SampleFormat("real2sm", _U8, 1, "", is_complex=False, bits=2, sign_magnitude=True, msb_first=True),
+          SampleFormat("iq2sm", _U8, 1, "", bits=2, sign_magnitude=True, msb_first=True),
+          SampleFormat("real4", _U8, 1, "", is_complex=False, bits=4, msb_first=True),
+          SampleFormat("iq4", _U8, 1, "", bits=4, msb_first=True))
+
+FORMATS: tuple[SampleFormat, ...] = (IBYTE, ISHORT, GR_COMPLEX, BYTE, SHORT, FLOAT) + _SIGMF_ONLY + PACKED
 _ALIASES = {"cfloat": GR_COMPLEX, "cbyte": IBYTE, "cshort": ISHORT}
-_BY_NAME = {f.name: f for f in FORMATS} | _ALIASES | {f.sigmf_datatype: f for f in FORMATS}
-_BY_SIGMF = {f.sigmf_datatype: f for f in FORMATS}
-FORMAT_NAMES: tuple[str, ...] = ("ibyte", "ishort", "gr_complex", "cfloat", "byte", "short", "float")
+_BY_NAME = {f.name: f for f in FORMATS} | _ALIASES | {f.sigmf_datatype: f for f in FORMATS if f.sigmf_datatype}
+_BY_SIGMF = {f.sigmf_datatype: f for f in FORMATS if f.sigmf_datatype}
+FORMAT_NAMES: tuple[str, ...] = ("ibyte", "ishort", "gr_complex", "cfloat", "byte", "short", "float") + tuple(
+    f.name for f in PACKED)
 SIGMF_DATATYPES: tuple[str, ...] = tuple(_BY_SIGMF)
 
 
@@ -120,6 +148,15 @@ def decode_items(items: np.ndarray, fmt: SampleFormat) -> np.ndarray:
     first, i.e. a spectrally inverted signal); real formats give x + 0j.
     """
     items = np.asarray(items)
+    if fmt.bits:
+        values = _packed_table(fmt.bits, fmt.sign_magnitude, fmt.msb_first)[items.astype(np.uint8)].reshape(-1)
+        if not fmt.is_complex:
+            out = np.zeros(values.size, dtype=np.complex64)
+            out.real = values
+            return out
+        if fmt.iq_swapped:
+            values = values.reshape(-1, 2)[:, ::-1].copy()
+        return values.reshape(-1).view(np.complex64)
     if fmt.is_complex and not fmt.is_integer:
         out = np.array(items, dtype=np.complex64)   # a copy in native byte order, detached from any memmap
         if fmt.iq_swapped:
@@ -138,6 +175,20 @@ def decode_items(items: np.ndarray, fmt: SampleFormat) -> np.ndarray:
     return values.reshape(-1).view(np.complex64)
 
 
+@functools.lru_cache(maxsize=None)
+def _packed_table(bits: int, sign_magnitude: bool, msb_first: bool) -> np.ndarray:
+    """byte -> its 8/bits values in stream order, float32 (a look-up table: one gather decodes a block)."""
+    per_byte, mask = 8 // bits, (1 << bits) - 1
+    shifts = [8 - bits * (i + 1) if msb_first else bits * i for i in range(per_byte)]
+    fields = (np.arange(256)[:, None] >> np.array(shifts)) & mask
+    if sign_magnitude:
+        sign, magnitude = fields >> (bits - 1), fields & (mask >> 1)
+        values = (1 - 2 * sign) * (2 * magnitude + 1)
+    else:
+        values = 2 * np.where(fields >= 1 << (bits - 1), fields - (1 << bits), fields) + 1
+    return values.astype(np.float32)
+
+
 def encode_samples(samples: np.ndarray, fmt: SampleFormat, scale: float = 1.0) -> tuple[np.ndarray, int]:
     """Complex samples -> (items in `fmt` ready to write, number of samples clipped).
 
@@ -145,6 +196,8 @@ def encode_samples(samples: np.ndarray, fmt: SampleFormat, scale: float = 1.0) -
     counts as clipped when I or Q had to be. Floats: multiplied by `scale`; overflow to inf counts as clipped.
     Real formats keep the real part (the samples are a real signal at an IF).
     """
+    if fmt.bits:
+        raise ValueError(f"writing packed {fmt.bits}-bit samples ({fmt.name}) is not supported; write ibyte or byte")
     x = np.asarray(samples)
     if x.ndim != 1:
         raise ValueError(f"expected a 1-D array of complex samples, got shape {x.shape}")

@@ -66,14 +66,15 @@ class IqReader:
             raise ValueError(f"IQ file {self.path} is not a regular file")
         if size_bytes == 0:
             raise ValueError(f"IQ file {self.path} is empty")
-        self.n_samples, self.truncated_bytes = divmod(size_bytes, self.fmt.bytes_per_sample)
+        n_blocks, self.truncated_bytes = divmod(size_bytes, self.fmt.block_bytes)
+        self.n_samples = n_blocks * self.fmt.samples_per_block
         if self.n_samples == 0:
             raise ValueError(f"IQ file {self.path} holds {size_bytes} bytes, less than one {self.fmt.name} sample "
-                             f"({self.fmt.bytes_per_sample} bytes)")
+                             f"({self.fmt.block_bytes} bytes)")
         try:
             # Map only the whole samples, so a trailing partial sample can never leak into the data.
             self._items = np.memmap(self.path, dtype=self.fmt.item_dtype, mode="r",
-                                    shape=(self.n_samples * self.fmt.items_per_sample,))
+                                    shape=(n_blocks * self.fmt.items_per_block,))
         except (OSError, ValueError) as exc:
             raise ValueError(f"cannot map IQ file {self.path}: {exc}") from None
 
@@ -96,9 +97,11 @@ class IqReader:
             raise ValueError(f"IQ file {self.path} is closed")
         stop = min(start + count, self.n_samples)
         start = min(start, stop)
-        k = self.fmt.items_per_sample
+        k, per = self.fmt.items_per_block, self.fmt.samples_per_block
+        first, last = start // per, -(-stop // per)   # the whole blocks (bytes, when packed) holding the samples
         # The slice is a view of the mapping; decode copies it, so no caller ever holds the mapping open.
-        return decode_items(self._items[start * k:stop * k], self.fmt)
+        samples = decode_items(self._items[first * k:last * k], self.fmt)
+        return samples if per == 1 else samples[start - first * per:stop - first * per]
 
     def chunks(self, start_sample: int = 0, stop_sample: int | None = None) -> Iterator[np.ndarray]:
         """Consecutive chunks of `chunk_samples` from start_sample to stop_sample (default: end of file)."""
@@ -117,8 +120,9 @@ class IqReader:
         if mm is None or not hasattr(mmap, "MADV_DONTNEED"):
             return
         page = mmap.PAGESIZE
-        lo = (start_sample * self.fmt.bytes_per_sample) // page * page
-        hi = ((start_sample + n_samples) * self.fmt.bytes_per_sample) // page * page
+        per, size = self.fmt.samples_per_block, self.fmt.block_bytes
+        lo = (start_sample // per * size) // page * page
+        hi = ((start_sample + n_samples) // per * size) // page * page
         if hi > lo:
             try:
                 mm.madvise(mmap.MADV_DONTNEED, lo, hi - lo)

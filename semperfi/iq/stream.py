@@ -18,13 +18,16 @@ MAX_READ_BYTES = 1 << 30   # one request never asks for more than this (a hostil
 def read_stream(stream: BinaryIO, fmt: SampleFormat | str, n_samples: int, skip_samples: int = 0) -> np.ndarray:
     """Skip `skip_samples`, then return exactly `n_samples` decoded samples (complex64) from `stream`."""
     fmt = as_format(fmt)
+    per, size = fmt.samples_per_block, fmt.block_bytes
     for what, count in (("samples to skip", skip_samples), ("samples to read", n_samples)):
-        if int(count) != count or count < 0 or count * fmt.bytes_per_sample > MAX_READ_BYTES:
-            raise ValueError(f"{what} must be a whole number below {MAX_READ_BYTES // fmt.bytes_per_sample}, "
-                             f"got {count!r}")
-    _read_exactly(stream, int(skip_samples) * fmt.bytes_per_sample, "skipping", fmt)
-    raw = _read_exactly(stream, int(n_samples) * fmt.bytes_per_sample, "reading", fmt)
-    return decode_items(np.frombuffer(raw, dtype=fmt.item_dtype), fmt)
+        if int(count) != count or count < 0 or count * size / per > MAX_READ_BYTES:
+            raise ValueError(f"{what} must be a whole number below {MAX_READ_BYTES * per // size}, got {count!r}")
+    skip, n = int(skip_samples), int(n_samples)
+    first, last = skip // per, -(-(skip + n) // per)     # whole blocks (bytes, when packed)
+    _read_exactly(stream, first * size, "skipping", fmt)
+    raw = _read_exactly(stream, (last - first) * size, "reading", fmt)
+    samples = decode_items(np.frombuffer(raw, dtype=fmt.item_dtype), fmt)
+    return samples[skip - first * per:skip - first * per + n]
 
 
 def _read_exactly(stream: BinaryIO, n_bytes: int, doing: str, fmt: SampleFormat) -> bytes:
@@ -32,8 +35,9 @@ def _read_exactly(stream: BinaryIO, n_bytes: int, doing: str, fmt: SampleFormat)
     while got < n_bytes:
         block = stream.read(min(n_bytes - got, 1 << 22))
         if not block:
-            raise ValueError(f"input stream ended while {doing}: {got // fmt.bytes_per_sample} of "
-                             f"{n_bytes // fmt.bytes_per_sample} {fmt.name} samples arrived")
+            per = fmt.samples_per_block / fmt.block_bytes
+            raise ValueError(f"input stream ended while {doing}: {int(got * per)} of {int(n_bytes * per)} "
+                             f"{fmt.name} samples arrived")
         parts.append(block)
         got += len(block)
     return b"".join(parts)

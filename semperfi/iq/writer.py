@@ -63,7 +63,7 @@ class IqWriter:
         items, clipped = encode_samples(samples, self.fmt, self.scale)
         self._file.write(items)
         self._file.flush()   # to the OS: survives a crash of this process (not a power cut; fsync is too slow)
-        self.samples_written += len(items) // self.fmt.items_per_sample
+        self.samples_written += len(items) // self.fmt.items_per_block
         self.clipped_samples += clipped
         return clipped
 
