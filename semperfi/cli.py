@@ -84,21 +84,18 @@ def _parse_prns(text: str) -> list[int]:
 def acquire(file, fs_hz, fmt, iq_swap, if_hz, prn_text, start_s, coherent_ms, noncoherent, doppler_max_hz,
             doppler_step_hz, pfa, plot_path) -> None:
     """Search FILE for every PRN: one line per PRN with code phase, Doppler, C/N0, peak ratio and peak count."""
-    from .iq import open_iq
+    from .iq.source import open_source
     from .receiver.acquisition import DopplerGrid, acquire as run_acquisition
 
     prns = _parse_prns(prn_text)
     try:
-        if file == "-":   # a pipe: the format and rate must be given, the samples are read once, in order
-            reader = _StdinSource(_sample_format(fmt, iq_swap), fs_hz, if_hz)
-        elif file.startswith("rtl_tcp://"):   # an RTL-SDR behind rtl_tcp, tuned to L1
-            reader = _rtl_tcp_source(file, fs_hz)
-        else:
-            reader = open_iq(file, _sample_format(fmt, iq_swap), fs_hz, if_hz)
-        n = int(round(reader.fs_hz * 1e-3)) * coherent_ms * noncoherent
-        samples = reader.read(int(round(start_s * reader.fs_hz)), n)
+        source = open_source(file, _sample_format(fmt, iq_swap), fs_hz, if_hz, skip_s=start_s)
+        try:
+            samples = source.take(int(round(source.fs_hz * 1e-3)) * coherent_ms * noncoherent)
+        finally:
+            source.close()
         step = doppler_step_hz or 2.0 / 3.0 / (coherent_ms * 1e-3)
-        cafs = run_acquisition(samples, reader.fs_hz, prns, DopplerGrid(0.0, doppler_max_hz, step), reader.if_hz,
+        cafs = run_acquisition(samples, source.fs_hz, prns, DopplerGrid(0.0, doppler_max_hz, step), source.if_hz,
                                coherent_ms, noncoherent, pfa, excise=True,
                                tail_threshold=True)
     except ValueError as exc:
@@ -116,8 +113,8 @@ def acquire(file, fs_hz, fmt, iq_swap, if_hz, prn_text, start_s, coherent_ms, no
         from .receiver.plots import plot_cafs
         plot_cafs([c for c in cafs.values() if c.best], plot_path)
     if not found:
-        _fail(f"no satellite acquired in {file}: check --fs ({reader.fs_hz:g} Hz), --format ({reader.fmt.name}) "
-              f"and --if ({reader.if_hz:g} Hz), and that the file holds GPS L1 signals")
+        _fail(f"no satellite acquired in {file}: check --fs ({source.fs_hz:g} Hz), --format ({source.fmt.name}) "
+              f"and --if ({source.if_hz:g} Hz), and that the file holds GPS L1 signals")
 
 
 @main.command()
@@ -133,11 +130,17 @@ def acquire(file, fs_hz, fmt, iq_swap, if_hz, prn_text, start_s, coherent_ms, no
 @click.option("--defense", type=click.Choice(["off", "detect", "full"]), help="SemperFi's defence (default full; off = the conventional receiver)")
 @click.option("--adversarial", help="which peak is the attacker's: auto | stronger | later | prn:LIST")
 @click.option("--set", "sets", multiple=True, metavar="SECTION.KEY=VALUE", help="override a configuration key")
+@click.option("--skip", "skip_s", type=float, default=0.0, show_default=True, help="seconds of input to skip")
+@click.option("--duration", "duration_s", type=float, help="seconds of input to process (default: all)")
+@click.option("--fs-out", "fs_out_hz", type=float,
+              help="processing rate, Hz: decimate the input to it (an integer divisor of --fs; L1 brought to 0 Hz)")
 @click.option("--imu", "imu_path", type=click.Path(dir_okay=False),
               help="INS-only track t_s,north_m,east_m,down_m (t_s from FILE's first sample) with a maneuver in it: "
                    "the Adversarial Peak Identifier decides which peaks are the attacker's")
-def run(file, fs_hz, fmt, iq_swap, if_hz, nav_path, out_dir, config_path, defense, adversarial, sets, imu_path) -> None:
-    """Receive FILE: acquisition, tracking, navigation, PVT; fixes.csv, NMEA, GPX, GeoJSON, events.jsonl in --out."""
+def run(file, fs_hz, fmt, iq_swap, if_hz, nav_path, out_dir, config_path, defense, adversarial, sets, skip_s,
+        duration_s, fs_out_hz, imu_path) -> None:
+    """Receive FILE (a recording, - for standard input, or rtl_tcp://HOST:PORT): acquisition, tracking, navigation,
+    PVT; fixes.csv, NMEA, GPX, GeoJSON, RINEX observations, events.jsonl in --out."""
     import functools
 
     from .defense.defended import DefendedReceiver
@@ -147,13 +150,16 @@ def run(file, fs_hz, fmt, iq_swap, if_hz, nav_path, out_dir, config_path, defens
     sets = list(sets) + [f'defense.mode="{defense}"'] * bool(defense) + [f'defense.adversarial="{adversarial}"'] * bool(adversarial)
     try:
         cfg = _receiver_config(config_path, sets)
-        imu = read_imu_csv(imu_path) if imu_path else None
+        imu = read_imu_csv(imu_path).shifted(-skip_s) if imu_path else None   # its t_s counts from FILE's start
         summary = run_file(file, _sample_format(fmt, iq_swap), fs_hz, if_hz, cfg, out_dir, nav_path,
                            live=sys.stderr.isatty(),
-                           receiver_factory=functools.partial(DefendedReceiver, imu_track=imu))
+                           receiver_factory=functools.partial(DefendedReceiver, imu_track=imu),
+                           skip_s=skip_s, duration_s=duration_s, fs_out_hz=fs_out_hz)
     except (ValueError, OSError) as exc:
         _fail(str(exc))
     _print_run_summary(summary)
+    if summary.input_error:
+        _fail(f"input failed after {summary.duration_s:.1f} s (outputs kept): {summary.input_error}")
 
 
 @main.command()
@@ -167,15 +173,22 @@ def run(file, fs_hz, fmt, iq_swap, if_hz, nav_path, out_dir, config_path, defens
 @click.option("--adversarial", help="which peak is the attacker's: auto | stronger | later | prn:LIST")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), help="TOML configuration")
 @click.option("--set", "sets", multiple=True, metavar="SECTION.KEY=VALUE", help="override a configuration key")
-def clean(file, out_path, fs_hz, fmt, iq_swap, if_hz, adversarial, config_path, sets) -> None:
-    """Plug-in filter: write FILE with the spoofer's signals cancelled to OUT (same format and rate), for any
-    receiver; events go to OUT's stem + .events.jsonl."""
+@click.option("--skip", "skip_s", type=float, default=0.0, show_default=True, help="seconds of input to skip")
+@click.option("--duration", "duration_s", type=float, help="seconds of input to process (default: all)")
+@click.option("--fs-out", "fs_out_hz", type=float,
+              help="processing rate, Hz: decimate the input to it (an integer divisor of --fs; L1 brought to 0 Hz)")
+def clean(file, out_path, fs_hz, fmt, iq_swap, if_hz, adversarial, config_path, sets, skip_s, duration_s,
+          fs_out_hz) -> None:
+    """Plug-in filter: write FILE (or - for standard input, rtl_tcp://HOST:PORT) with the spoofer's signals cancelled
+    to OUT (same format and rate; complex integers after --fs-out or from packed input), for any receiver; events go
+    to OUT's stem + .events.jsonl."""
     from .defense.clean import clean_file
 
     sets = ['defense.mode="full"'] + list(sets) + [f'defense.adversarial="{adversarial}"'] * bool(adversarial)
     try:
         cfg = _receiver_config(config_path, sets)
-        s = clean_file(file, out_path, _sample_format(fmt, iq_swap), fs_hz, if_hz, cfg, progress=sys.stderr.isatty())
+        s = clean_file(file, out_path, _sample_format(fmt, iq_swap), fs_hz, if_hz, cfg, progress=sys.stderr.isatty(),
+                       skip_s=skip_s, duration_s=duration_s, fs_out_hz=fs_out_hz)
     except (ValueError, OSError) as exc:
         _fail(str(exc))
     click.echo(f"cleaned {s.duration_s:.1f} s in {s.wall_s:.1f} s into {s.out_path}")
@@ -186,31 +199,8 @@ def clean(file, out_path, fs_hz, fmt, iq_swap, if_hz, adversarial, config_path, 
         click.echo(f"  PRN {prn:>2}: attenuation {', '.join(map(str, last)) or 'not yet measured'} dB (per SIC stage)")
     if s.gave_up:
         click.echo(f"  gave up on: {s.gave_up}", err=True)
-
-
-class _StdinSource:
-    """Standard input as a one-shot sample source for `acquire -`."""
-
-    def __init__(self, fmt, fs_hz, if_hz):
-        from .iq.formats import _finite_float, _positive_float, as_format
-        if fmt is None or fs_hz is None:
-            raise ValueError("reading samples from standard input needs --format and --fs")
-        self.fmt, self.fs_hz = as_format(fmt), _positive_float(fs_hz, "sample rate (--fs)")
-        self.if_hz = _finite_float(if_hz or 0.0, "intermediate frequency (--if)")
-        if not self.fmt.is_complex and not 0 < abs(self.if_hz) < self.fs_hz / 2:
-            raise ValueError(f"real-valued samples ({self.fmt.name}) need --if between 0 and fs/2")
-
-    def read(self, start_sample: int, n_samples: int):
-        from .iq.stream import read_stream
-        return read_stream(sys.stdin.buffer, self.fmt, n_samples, skip_samples=start_sample)
-
-
-def _rtl_tcp_source(url: str, fs_hz):
-    from .iq.rtltcp import RtlTcpSource
-    host, _, port = url[len("rtl_tcp://"):].rpartition(":")
-    if not host or not port.isdigit() or not 0 < int(port) < 65536 or fs_hz is None:
-        raise ValueError(f"expected rtl_tcp://HOST:PORT with --fs, got {url!r}")
-    return RtlTcpSource(host, int(port), fs_hz)
+    if s.input_error:
+        _fail(f"input failed after {s.duration_s:.1f} s (the cleaned samples before it are written): {s.input_error}")
 
 
 def _sample_format(fmt, iq_swap: bool):

@@ -1,59 +1,19 @@
 """Claims about the rtl_tcp client, against a local replay server on 127.0.0.1 that stops by itself."""
 
-import socket
 import struct
-import threading
 
 import numpy as np
 import pytest
 
 from semperfi.iq.rtltcp import RtlTcpSource
 
-
-def _server(payload: bytes, header: bytes = b"RTL0" + struct.pack(">II", 5, 29), stall_after: int | None = None):
-    """Serve one client once: header, then payload (stopping after stall_after bytes without closing)."""
-    srv = socket.socket()
-    srv.bind(("127.0.0.1", 0))
-    srv.listen(1)
-    srv.settimeout(10)
-    commands = []
-
-    def run():
-        try:
-            conn, _ = srv.accept()
-        except OSError:
-            return
-        with conn:
-            conn.sendall(header)
-            conn.settimeout(1)
-            got = b""
-            try:
-                while len(got) < 15:   # the client's three 5-byte commands
-                    block = conn.recv(15 - len(got))
-                    if not block:
-                        break
-                    got += block
-            except OSError:
-                pass
-            commands.append(got)
-            body = payload if stall_after is None else payload[:stall_after]
-            try:
-                conn.sendall(body)
-                conn.settimeout(2.0)
-                conn.recv(1)   # silent until the client hangs up (or 2 s pass): a stall, then gone
-            except OSError:
-                pass
-        srv.close()
-
-    thread = threading.Thread(target=run, daemon=True)
-    thread.start()
-    return srv.getsockname()[1], thread, commands
+from rtl_tcp_server import serve_once
 
 
 def test_replayed_stream_arrives_centred_and_tuned():
     rng = np.random.default_rng(5)
     raw = rng.integers(0, 256, size=2 * 4000, dtype=np.uint8)
-    port, thread, commands = _server(raw.tobytes())
+    port, thread, commands = serve_once(raw.tobytes())
     src = RtlTcpSource("127.0.0.1", port, 2.048e6, timeout_s=3)
     x = src.read(1000, 2000)
     src.close()
@@ -66,14 +26,14 @@ def test_replayed_stream_arrives_centred_and_tuned():
 
 
 def test_not_an_rtl_tcp_server_is_one_error():
-    port, thread, _ = _server(b"", header=b"HTTP/1.1 200")
+    port, thread, _ = serve_once(b"", header=b"HTTP/1.1 200")
     with pytest.raises(ValueError, match="not an rtl_tcp server"):
         RtlTcpSource("127.0.0.1", port, 2.048e6, timeout_s=3)
     thread.join(5)
 
 
 def test_stalled_stream_is_a_clear_error_not_a_short_block():
-    port, thread, _ = _server(bytes(8000), stall_after=1000)
+    port, thread, _ = serve_once(bytes(8000), stall_after=1000)
     src = RtlTcpSource("127.0.0.1", port, 2.048e6, timeout_s=0.5)
     with pytest.raises(ValueError, match="stalled|closed"):
         src.read(0, 4000)
@@ -95,7 +55,7 @@ def test_acquire_over_rtl_tcp_end_to_end(tmp_path):
     iq = np.empty(2 * n, dtype=np.uint8)
     iq[0::2] = np.clip(np.rint(127.5 + 25 * x.real), 0, 255)
     iq[1::2] = np.clip(np.rint(127.5 + 25 * x.imag), 0, 255)
-    port, thread, _ = _server(iq.tobytes())
+    port, thread, _ = serve_once(iq.tobytes())
     result = subprocess.run([sys.executable, "-m", "semperfi.cli", "acquire", f"rtl_tcp://127.0.0.1:{port}",
                              "--fs", str(fs), "--prn", "9-13"], capture_output=True, text=True, timeout=120)
     thread.join(5)

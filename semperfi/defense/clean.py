@@ -5,7 +5,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .. import config
-from ..iq import IqWriter, open_iq
+from ..iq import GR_COMPLEX, IBYTE, ISHORT, IqWriter
+from ..iq.source import SourceError, open_source
 from ..receiver.outputs import EventLog
 from .guard import SpoofGuard
 
@@ -23,34 +24,57 @@ class CleanSummary:
     gave_up: dict
     attenuation_db: dict
     clipped_fraction: float
+    input_error: str | None = None
 
 
-def clean_file(in_path, out_path, fmt, fs_hz, if_hz, cfg: dict, events_path=None, progress: bool = False) -> CleanSummary:
-    """Stream IN through the spoof guard into OUT (with its SigMF sidecar); events go to events_path."""
-    reader = open_iq(in_path, fmt, fs_hz, if_hz)
-    reader.chunk_samples = int(round(reader.fs_hz * CHUNK_S))
+def clean_file(in_path, out_path, fmt, fs_hz, if_hz, cfg: dict, events_path=None, progress: bool = False,
+               skip_s: float = 0.0, duration_s: float | None = None, fs_out_hz: float | None = None) -> CleanSummary:
+    """Stream IN (a file, `-` or rtl_tcp://HOST:PORT) through the spoof guard into OUT (with its SigMF sidecar);
+    events go to events_path. OUT keeps IN's format and rate, except after decimation (fs_out_hz) or from packed
+    samples, where it is complex integers of at least IN's width at the processing rate."""
+    source = open_source(in_path, fmt, fs_hz, if_hz, skip_s=skip_s, duration_s=duration_s, fs_out_hz=fs_out_hz)
     out_path = Path(out_path)
-    if out_path.resolve() == Path(in_path).resolve():
+    if str(in_path) != "-" and not str(in_path).startswith("rtl_tcp://") and \
+            out_path.resolve() == Path(in_path).resolve():
         raise ValueError("the output would overwrite the input: choose another -o")
     out_path.parent.mkdir(parents=True, exist_ok=True)
     events_path = Path(events_path) if events_path else out_path.with_suffix(".events.jsonl")
     t0 = time.perf_counter()
+    input_error = None
     with EventLog(events_path) as events, IqWriter(
-            out_path, reader.fmt, reader.fs_hz, if_hz=reader.if_hz,
-            metadata={"cleaned_from": Path(in_path).name, "configuration": config.dumps_toml(cfg)},
+            out_path, _output_format(source), source.fs_hz, if_hz=source.if_hz,
+            metadata={"cleaned_from": source.name, "configuration": config.dumps_toml(cfg),
+                      "skip_s": source.skip_samples / source.fs_in_hz},
             description="SemperFi plug-in filter output (spoofing signals cancelled)") as writer:
-        guard = SpoofGuard(cfg, reader.fs_hz, reader.if_hz, events)
-        chunks = reader
+        guard = SpoofGuard(cfg, source.fs_hz, source.if_hz, events)
+        chunks = source.chunks(CHUNK_S)
         if progress:
             from tqdm import tqdm
-            chunks = tqdm(reader, total=-(-reader.n_samples // reader.chunk_samples), unit="chunk", desc="cleaning")
+            total = source.expected_samples
+            chunks = tqdm(chunks, total=None if total is None else -(-total // int(source.fs_hz * CHUNK_S)),
+                          unit="chunk", desc="cleaning")
         try:
             for chunk in chunks:
                 writer.write(guard.push(chunk))
+        except SourceError as exc:
+            input_error = str(exc)
+            events.emit("input_lost", source.n_samples / source.fs_hz, error=input_error)
         finally:   # whatever happened, the samples already cleaned reach the file, in order
+            source.close()
             writer.write(guard.flush())
             guard.finish()
         clipped = writer.clipped_fraction
-    return CleanSummary(out_path, reader.n_samples / reader.fs_hz, time.perf_counter() - t0,
+    return CleanSummary(out_path, source.n_samples / source.fs_hz, time.perf_counter() - t0,
                         tuple(sorted(guard.alarmed_prns)), tuple(sorted(guard.cancel_started)),
-                        tuple(sorted(guard.verified)), dict(guard.gave_up), guard.canceller.report(), clipped)
+                        tuple(sorted(guard.verified)), dict(guard.gave_up), guard.canceller.report(), clipped,
+                        input_error)
+
+
+def _output_format(source):
+    """IN's format where it can carry the cleaned signal, else complex integers as wide (int8 or int16)."""
+    fmt = source.fmt
+    if source.factor == 1 and not fmt.bits:
+        return fmt
+    if not fmt.is_integer:
+        return GR_COMPLEX
+    return IBYTE if fmt.bits or fmt.item_dtype.itemsize == 1 else ISHORT

@@ -41,6 +41,10 @@ class ImuTrack:
         if np.any(np.diff(self.t_s) <= 0):
             raise ValueError("IMU track: t_s must increase")
 
+    def shifted(self, dt_s: float) -> "ImuTrack":
+        """The same track with its clock moved by dt_s (a recording processed from --skip on)."""
+        return ImuTrack(self.t_s + dt_s, self.north_m, self.east_m, self.down_m) if dt_s else self
+
     def position_at(self, t_s) -> np.ndarray:
         """NED displacement from the track's first sample, (len(t), 3)."""
         cols = [np.interp(t_s, self.t_s, c - c[0]) for c in (self.north_m, self.east_m, self.down_m)]

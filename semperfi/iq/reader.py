@@ -110,10 +110,10 @@ class IqReader:
         for first in range(start, stop, self.chunk_samples):
             n = min(self.chunk_samples, stop - first)
             chunk = self.read(first, n)
-            self._release(first, n)
+            self.release(first, n)
             yield chunk
 
-    def _release(self, start_sample: int, n_samples: int) -> None:
+    def release(self, start_sample: int, n_samples: int) -> None:
         """Tell the kernel a streamed chunk's pages are done with: a sequential pass then keeps a bounded resident
         set however long the recording (file pages would otherwise stay mapped, and counted, to the end)."""
         mm = getattr(self._items, "_mmap", None)

@@ -1,4 +1,5 @@
-"""`semperfi run`: the receiver over a recorded file, with a live channel table and outputs flushed as they come."""
+"""`semperfi run`: the receiver over a recording or a live stream, with a live channel table and outputs flushed as
+they come."""
 
 import sys
 import time
@@ -8,7 +9,7 @@ from pathlib import Path
 
 from .. import config
 from ..gps.time import GpsTime
-from ..iq import open_iq
+from ..iq.source import SampleSource, SourceError, open_source
 from .chain import Receiver, RunStats
 from .config import DEFAULTS
 from .navigation import AssistedNav
@@ -30,11 +31,13 @@ class RunSummary:
     wall_s: float
     truncated_bytes: int
     out_dir: Path
+    input_error: str | None = None   # the input failed part-way (closed, stalled): what came before is processed
 
 
-def _live_table(receiver: Receiver, t_s: float):
+def _live_table(receiver: Receiver, t_s: float, total_s: float | None = None):
     from rich.table import Table
-    table = Table(title=f"t = {t_s:7.1f} s   fixes {receiver.stats.n_fixes}", title_justify="left")
+    of = f" of {total_s:.1f} s ({100 * t_s / total_s:3.0f} %)" if total_s else ""
+    table = Table(title=f"t = {t_s:7.1f} s{of}   fixes {receiver.stats.n_fixes}", title_justify="left")
     for col in ("PRN", "state", "C/N0", "Doppler [Hz]", "code [chips]", "subframes"):
         table.add_column(col, justify="right")
     for r in receiver.channel_rows():
@@ -45,57 +48,77 @@ def _live_table(receiver: Receiver, t_s: float):
 
 def run_file(path: str | Path, fmt: str | None, fs_hz: float | None, if_hz: float | None, cfg: dict,
              out_dir: str | Path, nav_path: str | None = None, live: bool = False, receiver_hook=None,
-             receiver_factory=Receiver) -> RunSummary:
-    """Run a receiver over a file; ValueError (one line) for bad input, NoSignal when nothing acquires.
+             receiver_factory=Receiver, skip_s: float = 0.0, duration_s: float | None = None,
+             fs_out_hz: float | None = None) -> RunSummary:
+    """Run a receiver over a file, `-` (standard input) or rtl_tcp://HOST:PORT; ValueError (one line) for bad input,
+    NoSignal when nothing acquires. skip_s, duration_s cut a window; fs_out_hz decimates to a processing rate.
 
     receiver_factory builds the receiver (the conventional chain by default; the defended one wraps it)."""
-    reader = open_iq(path, fmt, fs_hz, if_hz)
-    reader.chunk_samples = int(round(reader.fs_hz * CHUNK_S))   # the rate may come from the sidecar
+    source = open_source(path, fmt, fs_hz, if_hz, skip_s=skip_s, duration_s=duration_s, fs_out_hz=fs_out_hz)
     assisted = AssistedNav.from_rinex(nav_path) if nav_path else None
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     write_config(out_dir, config.dumps_toml(cfg))
     t0 = time.perf_counter()
+    input_error = None
+    total_s = None if source.expected_samples is None else source.expected_samples / source.fs_hz
     with OutputWriter(out_dir, cfg["output"]["formats"]) as out:
-        receiver = receiver_factory(cfg, reader.fs_hz, reader.if_hz, assisted, on_fix=out.write, events=out,
-                                    week_hint=_week_hint(reader, assisted), on_observations=out.write_observations)
+        receiver = receiver_factory(cfg, source.fs_hz, source.if_hz, assisted, on_fix=out.write, events=out,
+                                    week_hint=_week_hint(source, assisted), on_observations=out.write_observations)
         if receiver_hook is not None:
             receiver_hook(receiver)
-        if reader.truncated_bytes:
-            out.emit("truncated_input", reader.n_samples / reader.fs_hz, dropped_bytes=reader.truncated_bytes)
+        out.emit("input", 0.0, source=source.name, format=source.fmt.name, fs_hz=source.fs_in_hz,
+                 if_hz=source.if_in_hz, skip_s=source.skip_samples / source.fs_in_hz, processing_fs_hz=source.fs_hz,
+                 processing_if_hz=source.if_hz)
         live_ctx = None
         if live:
             from rich.console import Console
             from rich.live import Live
-            live_ctx = Live(_live_table(receiver, 0.0), console=Console(file=sys.stderr), refresh_per_second=4)
+            live_ctx = Live(_live_table(receiver, 0.0, total_s), console=Console(file=sys.stderr),
+                            refresh_per_second=4)
             live_ctx.start()
         try:
             last_draw = 0.0
-            for chunk in reader:
+            for chunk in source.chunks(CHUNK_S):
                 receiver.feed(chunk)
+                _report_notices(source, out)
                 now = time.perf_counter()
                 if live_ctx is not None and now - last_draw > 0.25:
-                    live_ctx.update(_live_table(receiver, receiver.stats.samples / reader.fs_hz))
+                    live_ctx.update(_live_table(receiver, receiver.stats.samples / source.fs_hz, total_s))
                     last_draw = now
         except KeyboardInterrupt:
-            out.emit("interrupted", receiver.stats.samples / reader.fs_hz)
+            out.emit("interrupted", receiver.stats.samples / source.fs_hz)
+        except SourceError as exc:   # keep everything computed; the caller reports the failure after the summary
+            input_error = str(exc)
+            out.emit("input_lost", receiver.stats.samples / source.fs_hz, error=input_error)
         finally:
+            source.close()
+            if source.truncated_bytes:
+                out.emit("truncated_input", source.n_samples / source.fs_hz, dropped_bytes=source.truncated_bytes)
             if hasattr(receiver, "finish"):
                 receiver.finish()
             if live_ctx is not None:
-                live_ctx.update(_live_table(receiver, receiver.stats.samples / reader.fs_hz))
+                live_ctx.update(_live_table(receiver, receiver.stats.samples / source.fs_hz, total_s))
                 live_ctx.stop()
-    summary = RunSummary(receiver.stats, receiver.last_fix, reader.n_samples / reader.fs_hz,
-                         time.perf_counter() - t0, reader.truncated_bytes, out_dir)
-    if not receiver.stats.confirmed:
-        raise NoSignal(f"no satellite signal could be tracked in {path}: check --fs ({reader.fs_hz:g} Hz), --format "
-                       f"({reader.fmt.name}) and --if ({reader.if_hz:g} Hz); outputs in {out_dir}")
+    summary = RunSummary(receiver.stats, receiver.last_fix, source.n_samples / source.fs_hz,
+                         time.perf_counter() - t0, source.truncated_bytes, out_dir, input_error)
+    if not receiver.stats.confirmed and input_error is None:
+        raise NoSignal(f"no satellite signal could be tracked in {source.name}: check --fs ({source.fs_in_hz:g} Hz), "
+                       f"--format ({source.fmt.name}) and --if ({source.if_in_hz:g} Hz); outputs in {out_dir}")
     return summary
 
 
-def _week_hint(reader, assisted: AssistedNav | None) -> int | None:
+def _report_notices(source: SampleSource, out: OutputWriter) -> None:
+    """A live stream's trouble goes to events.jsonl and, as it happens, to stderr."""
+    while source.notices:
+        n = source.notices.pop(0)
+        out.emit(n.kind, n.t_s, **n.fields)
+        print(f"warning at t = {n.t_s:.1f} s: {n.fields.get('why', n.kind)}", file=sys.stderr)
+
+
+def _week_hint(source, assisted: AssistedNav | None) -> int | None:
     """The GPS week, when the sidecar's capture time or the navigation file tells it (the message's WN is 10 bits)."""
-    when = reader.sidecar.datetime_utc if reader.sidecar is not None else None
+    when = source.sidecar.datetime_utc if source.sidecar is not None else None
     if when:
         try:
             return GpsTime.from_datetime(datetime.fromisoformat(str(when).replace("Z", "+00:00"))).week
