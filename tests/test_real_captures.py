@@ -2,8 +2,7 @@
 nothing else.
 
 The captures are PocketSDR's public sample data (github.com/tomojitakasu/PocketSDR, folder sample/, see its
-sample/readme.txt). They are not in this repository: put them in $SEMPERFI_REAL_DATA (default /work/data/real);
-each test skips, saying so, when its file is absent.
+sample/readme.txt), kept in tests/data/pocketsdr/ with their licence ($SEMPERFI_REAL_DATA points elsewhere).
 
 The reference values were produced here by GNSS-SDR 0.0.17 (one run per PRN, Channel0.satellite=PRN,
 GPS_L1_CA_PCPS_Acquisition, 4 ms coherent, 25 Hz Doppler step, pfa 1e-3, dump of acq_delay_samples,
@@ -20,10 +19,11 @@ from semperfi.gps.constants import CA_CHIP_RATE_HZ
 from semperfi.iq import open_iq, with_iq_swap
 from semperfi.receiver.acquisition import DopplerGrid, acquire
 
-REAL_DATA = Path(os.environ.get("SEMPERFI_REAL_DATA", "/work/data/real"))
+REAL_DATA = Path(os.environ.get("SEMPERFI_REAL_DATA", Path(__file__).parent / "data" / "pocketsdr"))
 
 IQ_4MHZ = "L1_20211202_084700_4MHz_IQ.bin"    # int8 complex, 4 MSa/s, IF 0, 0.5 s (readme says 100 ms)
 REAL_12MHZ = "L1_20211125_004000_12MHz_I.bin"  # int8 real, 12 MSa/s, IF 3 MHz, 0.1 s
+REAL_24MHZ = "L1_20211201_054600_24MHz_I.bin"  # int8 real, 24 MSa/s, IF 6 MHz, 0.1 s
 
 # GNSS-SDR on IQ_4MHZ, acquisition block starting at sample 24191: PRN -> (acq_delay_samples, acq_doppler_hz).
 GNSS_SDR_IQ_START = 24191
@@ -114,6 +114,26 @@ def test_12mhz_real_if_capture_acquires_consistently():
             assert prn in window, f"GNSS-SDR's PRN {prn} missing: ours {sorted(window)}"
             d = window[prn].best.doppler_hz - doppler_hz
             assert abs(d) < 50.0, f"PRN {prn}: Doppler {window[prn].best.doppler_hz:.0f} vs GNSS-SDR {doppler_hz}"
+
+
+def test_24mhz_real_capture_decimated_to_4mhz_finds_the_same_satellites():
+    """The processing-rate path on a real front end: 24 MSa/s real samples at a 6 MHz IF, mixed to 0 Hz and
+    decimated by 6 as they stream, give the satellites a search at the full rate gives, at the same Doppler and
+    code phase (the decimator keeps input time: output sample j is input sample 6 j)."""
+    from semperfi.iq.source import SampleSource
+    path = _capture(REAL_24MHZ)
+    n_ms = 20
+    full_rate = _acquired(open_iq(path, "byte", 24e6, 6e6).read(0, 24_000 * n_ms), 24e6, 6e6, coherent_ms=4,
+                          noncoherent=5, step_hz=125.0)
+    source = SampleSource(str(path), "byte", 24e6, 6e6, fs_out_hz=4e6)
+    decimated = _acquired(source.take(4_000 * n_ms), 4e6, 0.0, coherent_ms=4, noncoherent=5, step_hz=125.0)
+    clear = {prn for prn, caf in full_rate.items() if caf.second_peak_ratio > 3.0}
+    assert len(clear) >= 4, f"clear satellites at 24 MSa/s: {sorted(clear)}"
+    assert clear <= set(decimated), f"24 MSa/s {sorted(clear)}, decimated {sorted(decimated)}"
+    for prn in clear:
+        a, b = full_rate[prn].best, decimated[prn].best
+        assert abs(a.doppler_hz - b.doppler_hz) < 50.0, (prn, a.doppler_hz, b.doppler_hz)
+        assert abs((a.code_phase_chips - b.code_phase_chips + 511.5) % 1023 - 511.5) < 0.1, (prn, a, b)
 
 
 def test_real_samples_need_an_if_inside_the_band(tmp_path):
