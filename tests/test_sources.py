@@ -4,6 +4,7 @@ that is lost, slow or outpaces the receiver is reported, never silently mistimed
 
 import csv
 import json
+import os
 import subprocess
 import sys
 
@@ -182,3 +183,17 @@ def test_a_receiver_behind_a_live_stream_is_reported(monkeypatch):
     src.close()
     thread.join(10)
     assert {n.kind for n in src.notices} == {"input_lagging"}, src.notices
+
+
+def test_clean_from_standard_input_writes_what_clean_from_the_file_writes(assisted):
+    d, _ = assisted
+    runs = {}
+    for name, args, stdin_path in (("file", [str(d / "a.bin")], None),
+                                   ("pipe", ["-", "--fs", str(FS), "--format", "ibyte"], d / "a.bin")):
+        with open(stdin_path or os.devnull, "rb") as stdin:
+            runs[name] = subprocess.run([sys.executable, "-m", "semperfi.cli", "clean", *args, "--duration", "3",
+                                         "-o", str(d / f"clean_{name}.bin")], stdin=stdin, capture_output=True,
+                                        text=True, timeout=600)
+        assert runs[name].returncode == 0, runs[name].stderr
+    assert (d / "clean_pipe.bin").stat().st_size == 3 * int(FS) * 2
+    assert (d / "clean_pipe.bin").read_bytes() == (d / "clean_file.bin").read_bytes()
