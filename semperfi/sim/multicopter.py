@@ -37,34 +37,54 @@ class FlightRecord:
     gyro_body_rps: np.ndarray
 
 
+class Multicopter:
+    """The vehicle one step at a time (the MAVLink endpoint drives it live); seeded: same seed, same flight.
+
+    step() takes the commanded NED velocity, moves the vehicle by dt_s and returns the IMU's specific force and
+    angular rate (body frame, with errors) over that step."""
+
+    def __init__(self, seed: int, heading_rad: float = 0.0, params=VehicleParams(), imu=ImuErrors(),
+                 pos_ned_m=(0.0, 0.0, 0.0)):
+        self.params, self.imu = params, imu
+        self.rng = np.random.default_rng(seed)
+        self.heading_rad = float(heading_rad)
+        self.pos_ned_m = np.array(pos_ned_m, float)
+        self.vel_ned_mps = np.zeros(3)
+        self.accel_ned_mps2 = np.zeros(3)
+        self._gust = np.zeros(3)
+        self._c_nb = np.array([[np.cos(heading_rad), -np.sin(heading_rad), 0],
+                               [np.sin(heading_rad), np.cos(heading_rad), 0], [0, 0, 1]])
+        self._a_bias = self.rng.normal(0, imu.accel_bias_mps2, 3)
+        self._g_bias = self.rng.normal(0, imu.gyro_bias_rps, 3)
+
+    def step(self, setpoint_vel_ned_mps, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+        p, imu, rng = self.params, self.imu, self.rng
+        a_cmd = p.velocity_gain_per_s * (np.asarray(setpoint_vel_ned_mps, float) - self.vel_ned_mps)
+        norm = np.linalg.norm(a_cmd)
+        if norm > p.max_accel_mps2:
+            a_cmd *= p.max_accel_mps2 / norm
+        alpha = np.exp(-dt_s / p.gust_tau_s)
+        self._gust = alpha * self._gust + np.sqrt(1 - alpha ** 2) * rng.normal(0, p.gust_sigma_mps2, 3)
+        a = a_cmd + self._gust
+        self._a_bias = self._a_bias + rng.normal(0, imu.accel_bias_instability_mps2 * np.sqrt(dt_s), 3)
+        f_true = self._c_nb.T @ (a - GRAVITY_NED_MPS2)
+        accel = f_true + self._a_bias + rng.normal(0, imu.accel_noise_mps2_rthz / np.sqrt(dt_s), 3)
+        gyro = self._g_bias + rng.normal(0, imu.gyro_noise_rps_rthz / np.sqrt(dt_s), 3)
+        self.pos_ned_m = self.pos_ned_m + self.vel_ned_mps * dt_s + 0.5 * a * dt_s ** 2
+        self.vel_ned_mps = self.vel_ned_mps + a * dt_s
+        self.accel_ned_mps2 = a
+        return accel, gyro
+
+
 def fly(setpoints, dt_s: float, seed: int, heading_rad: float = 0.0, params=VehicleParams(),
         imu=ImuErrors()) -> FlightRecord:
     """setpoints: (n, 3) commanded NED velocity per step.  Seeded: same seed, same flight."""
-    rng = np.random.default_rng(seed)
-    sp = np.asarray(setpoints, float)
-    n = len(sp)
-    v = np.zeros(3)
-    p = np.zeros(3)
-    gust = np.zeros(3)
-    c = np.array([[np.cos(heading_rad), -np.sin(heading_rad), 0], [np.sin(heading_rad), np.cos(heading_rad), 0],
-                  [0, 0, 1]])
-    a_bias = rng.normal(0, imu.accel_bias_mps2, 3)
-    g_bias = rng.normal(0, imu.gyro_bias_rps, 3)
+    vehicle = Multicopter(seed, heading_rad, params, imu)
     pos, vel, acc, gyr = [], [], [], []
-    alpha = np.exp(-dt_s / params.gust_tau_s)
-    for k in range(n):
-        a_cmd = params.velocity_gain_per_s * (sp[k] - v)
-        norm = np.linalg.norm(a_cmd)
-        if norm > params.max_accel_mps2:
-            a_cmd *= params.max_accel_mps2 / norm
-        gust = alpha * gust + np.sqrt(1 - alpha ** 2) * rng.normal(0, params.gust_sigma_mps2, 3)
-        a = a_cmd + gust
-        a_bias = a_bias + rng.normal(0, imu.accel_bias_instability_mps2 * np.sqrt(dt_s), 3)
-        f_true = c.T @ (a - GRAVITY_NED_MPS2)
-        pos.append(p.copy())
-        vel.append(v.copy())
-        acc.append(f_true + a_bias + rng.normal(0, imu.accel_noise_mps2_rthz / np.sqrt(dt_s), 3))
-        gyr.append(g_bias + rng.normal(0, imu.gyro_noise_rps_rthz / np.sqrt(dt_s), 3))
-        p = p + v * dt_s + 0.5 * a * dt_s ** 2
-        v = v + a * dt_s
-    return FlightRecord(np.arange(n) * dt_s, np.array(pos), np.array(vel), np.array(acc), np.array(gyr))
+    for sp in np.asarray(setpoints, float):
+        pos.append(vehicle.pos_ned_m.copy())
+        vel.append(vehicle.vel_ned_mps.copy())
+        f, w = vehicle.step(sp, dt_s)
+        acc.append(f)
+        gyr.append(w)
+    return FlightRecord(np.arange(len(pos)) * dt_s, np.array(pos), np.array(vel), np.array(acc), np.array(gyr))

@@ -1,0 +1,217 @@
+"""A simulated multicopter behind a MAVLink endpoint (pymavlink, UDP on loopback), standing in for ArduCopter.
+
+It listens on UDP HOST:PORT and answers the last peer that sent it valid MAVLink (the ground station or companion
+computer); every datagram is parsed on its own, so garbage in one cannot swallow the frames of the next. It starts
+airborne, armed and holding position (LOITER) at `altitude_m`; like ArduCopter it obeys SET_POSITION_TARGET_LOCAL_NED
+(velocity or position, MAV_FRAME_LOCAL_NED) only in GUIDED mode, set with SET_MODE or COMMAND_LONG
+MAV_CMD_DO_SET_MODE (custom mode 4), and holds position when velocity setpoints stop for SETPOINT_TIMEOUT_S. It
+reports HEARTBEAT (1 Hz), GLOBAL_POSITION_INT, LOCAL_POSITION_NED, ATTITUDE (10 Hz) and SCALED_IMU (50 Hz: mG,
+mrad/s) from the true state and the IMU error model.
+
+The other end is assumed hostile: undecodable bytes, bad CRCs, non-finite or out-of-frame setpoints and unknown
+commands are counted in `rejected` (and logged), never acted on, and never stop the loop. Time runs `time_scale`
+times faster than the wall clock (tests fly a 20 s maneuver in a second or two); `time_boot_ms` is vehicle time.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import socket
+import struct
+import threading
+import time
+
+import numpy as np
+import pymap3d
+from pymavlink.dialects.v20 import common as mav
+
+from .multicopter import ImuErrors, Multicopter, VehicleParams
+
+log = logging.getLogger(__name__)
+
+PHYSICS_HZ = 50                    # one physics step per IMU sample
+TELEMETRY_EVERY = 5                # GLOBAL_POSITION_INT, LOCAL_POSITION_NED, ATTITUDE at 10 Hz
+HEARTBEAT_EVERY = 50               # 1 Hz
+MODES = {"STABILIZE": 0, "GUIDED": 4, "LOITER": 5, "RTL": 6, "LAND": 9}   # ArduCopter's custom modes
+SETPOINT_TIMEOUT_S = 3.0           # ArduCopter stops after 3 s without a velocity command
+MAX_SPEED_MPS = 10.0
+POSITION_GAIN_PER_S = 1.0          # a position setpoint becomes a velocity command toward it
+G_MPS2 = 9.80665
+_IGNORE_POSITION = 0b111           # type_mask bits 0-2: ignore x, y, z
+_IGNORE_VELOCITY = 0b111000        # bits 3-5: ignore vx, vy, vz
+
+
+class MavlinkVehicle:
+    """Run with `start()` (a thread) or `run(stop_event)`; `close()` stops it."""
+
+    def __init__(self, port: int, host: str = "127.0.0.1", seed: int = 0, origin=(42.3398, -71.0892, 10.0),
+                 altitude_m: float = 50.0, heading_rad: float = 0.0, time_scale: float = 1.0,
+                 params=VehicleParams(), imu=ImuErrors()):
+        if not (0 < time_scale <= 100):
+            raise ValueError(f"time_scale must be in (0, 100], got {time_scale}")
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind((host, port))
+        self.sock.setblocking(False)
+        self.peer = None   # where telemetry goes: the last address that sent valid MAVLink
+        self.mav = mav.MAVLink(self, srcSystem=1, srcComponent=1)
+        self.origin = origin
+        self.vehicle = Multicopter(seed, heading_rad, params, imu, pos_ned_m=(0.0, 0.0, -altitude_m))
+        self.time_scale = float(time_scale)
+        self.mode = MODES["LOITER"]
+        self.armed = True
+        self.t_s = 0.0
+        self.rejected = 0
+        self.setpoints = 0
+        self._target_vel = np.zeros(3)
+        self._target_pos: np.ndarray | None = self.vehicle.pos_ned_m.copy()   # LOITER holds where it is
+        self._last_setpoint_s = -math.inf
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    # -- loop --------------------------------------------------------------------------------------------------
+    def start(self) -> MavlinkVehicle:
+        self._thread = threading.Thread(target=self.run, args=(self._stop,), daemon=True)
+        self._thread.start()
+        return self
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(5)
+        self.sock.close()
+
+    def write(self, frame: bytes) -> None:
+        """pymavlink's output: a frame to the ground station, once there is one."""
+        if self.peer is not None:
+            try:
+                self.sock.sendto(frame, self.peer)
+            except OSError:
+                pass   # it went away
+
+    def run(self, stop: threading.Event) -> None:
+        dt = 1.0 / PHYSICS_HZ
+        wall0, k = time.monotonic(), 0
+        while not stop.is_set():
+            self._receive()
+            accel, gyro = self.vehicle.step(self._command(), dt)
+            k += 1
+            self.t_s = k * dt
+            self._send(k, accel, gyro)
+            lag = wall0 + self.t_s / self.time_scale - time.monotonic()
+            if lag > 0:
+                time.sleep(lag)
+
+    def _command(self) -> np.ndarray:
+        """The velocity the autopilot commands now: the GUIDED velocity (until it times out) or toward a position."""
+        v = self.vehicle
+        if self.mode == MODES["GUIDED"] and self._target_pos is None:
+            if self.t_s - self._last_setpoint_s <= SETPOINT_TIMEOUT_S:
+                return self._target_vel
+            self._target_pos = v.pos_ned_m.copy()   # hold where the commands stopped
+        if self._target_pos is None:
+            self._target_pos = v.pos_ned_m.copy()
+        cmd = POSITION_GAIN_PER_S * (self._target_pos - v.pos_ned_m)
+        speed = np.linalg.norm(cmd)
+        return cmd if speed <= MAX_SPEED_MPS else cmd * (MAX_SPEED_MPS / speed)
+
+    # -- what comes in -----------------------------------------------------------------------------------------
+    def _reject(self, why: str) -> None:
+        self.rejected += 1
+        log.warning("vehicle: rejected %s", why)
+
+    def _receive(self) -> None:
+        for _ in range(1000):   # a flood cannot hold the loop for ever: the rest waits for the next step
+            try:
+                data, address = self.sock.recvfrom(65535)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:
+                return
+            parser = mav.MAVLink(None)
+            parser.robust_parsing = True
+            try:
+                messages = parser.parse_buffer(data) or []
+            except Exception as exc:   # noqa: BLE001 -- a hostile peer's bytes may break the parser in any way
+                self._reject(f"undecodable datagram ({type(exc).__name__})")
+                continue
+            for msg in messages:
+                if msg.get_type() == "BAD_DATA":
+                    self._reject("bytes that are not MAVLink (or a bad CRC)")
+                    continue
+                self.peer = address
+                kind = msg.get_type()
+                if kind == "SET_MODE":
+                    self._set_mode(msg.custom_mode)
+                elif kind == "COMMAND_LONG":
+                    self._command_long(msg)
+                elif kind == "SET_POSITION_TARGET_LOCAL_NED":
+                    self._setpoint(msg)
+            if not messages and data:
+                self._reject("a datagram with no complete MAVLink frame")
+
+    def _set_mode(self, custom_mode) -> bool:
+        if custom_mode not in MODES.values():
+            self._reject(f"mode {custom_mode!r}")
+            return False
+        if custom_mode != self.mode:
+            self._target_pos = self.vehicle.pos_ned_m.copy() if custom_mode != MODES["GUIDED"] else None
+            self._target_vel = np.zeros(3)
+            self._last_setpoint_s = -math.inf
+        self.mode = int(custom_mode)
+        return True
+
+    def _command_long(self, msg) -> None:
+        if msg.command == mav.MAV_CMD_DO_SET_MODE:
+            ok = math.isfinite(msg.param2) and msg.param2 == int(msg.param2) and self._set_mode(int(msg.param2))
+        elif msg.command == mav.MAV_CMD_COMPONENT_ARM_DISARM:
+            ok = msg.param1 in (0.0, 1.0) and (msg.param1 == 1.0 or self.vehicle.pos_ned_m[2] > -0.5)   # no disarm aloft
+            self.armed = self.armed if not ok else msg.param1 == 1.0
+        else:
+            self._reject(f"command {msg.command}")
+            self.mav.command_ack_send(msg.command, mav.MAV_RESULT_UNSUPPORTED)
+            return
+        self.mav.command_ack_send(msg.command, mav.MAV_RESULT_ACCEPTED if ok else mav.MAV_RESULT_DENIED)
+
+    def _setpoint(self, msg) -> None:
+        if self.mode != MODES["GUIDED"] or not self.armed:
+            return self._reject("setpoint outside GUIDED mode")
+        if msg.coordinate_frame != mav.MAV_FRAME_LOCAL_NED:
+            return self._reject(f"setpoint in frame {msg.coordinate_frame}")
+        pos = np.array([msg.x, msg.y, msg.z], float)
+        vel = np.array([msg.vx, msg.vy, msg.vz], float)
+        use_pos, use_vel = not msg.type_mask & _IGNORE_POSITION, not msg.type_mask & _IGNORE_VELOCITY
+        if not (use_pos or use_vel) or not np.all(np.isfinite(pos if use_pos else vel)):
+            return self._reject("setpoint with nothing usable or a non-finite value")
+        if use_pos:
+            self._target_pos = pos
+        else:
+            speed = np.linalg.norm(vel)
+            self._target_vel = vel if speed <= MAX_SPEED_MPS else vel * (MAX_SPEED_MPS / speed)
+            self._target_pos = None
+        self._last_setpoint_s = self.t_s
+        self.setpoints += 1
+
+    # -- what goes out -----------------------------------------------------------------------------------------
+    def _send(self, k: int, accel_mps2: np.ndarray, gyro_rps: np.ndarray) -> None:
+        m, v = self.mav, self.vehicle
+        ms = int(round(self.t_s * 1000))
+        try:
+            if k % HEARTBEAT_EVERY == 1:
+                base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (mav.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0)
+                m.heartbeat_send(mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_ARDUPILOTMEGA, base, self.mode,
+                                 mav.MAV_STATE_ACTIVE)
+            if k % TELEMETRY_EVERY == 0:
+                n, e, d = v.pos_ned_m
+                lat, lon, alt = pymap3d.ned2geodetic(n, e, d, *self.origin)
+                vn, ve, vd = v.vel_ned_mps
+                hdg = int(round(math.degrees(v.heading_rad) * 100)) % 36000
+                m.global_position_int_send(ms, int(round(lat * 1e7)), int(round(lon * 1e7)), int(round(alt * 1e3)),
+                                           int(round(-d * 1e3)), *(int(round(c * 100)) for c in (vn, ve, vd)), hdg)
+                m.local_position_ned_send(ms, n, e, d, vn, ve, vd)
+                m.attitude_send(ms, 0.0, 0.0, v.heading_rad, 0.0, 0.0, 0.0)
+            acc_mg = np.clip(np.round(accel_mps2 / G_MPS2 * 1000), -32768, 32767).astype(int)
+            gyro_mrad = np.clip(np.round(gyro_rps * 1000), -32768, 32767).astype(int)
+            m.scaled_imu_send(ms, *acc_mg.tolist(), *gyro_mrad.tolist(), 0, 0, 0, 0)
+        except (OSError, struct.error):
+            pass   # no ground station yet, or a value out of a field's range (not sent)

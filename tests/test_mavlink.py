@@ -1,0 +1,95 @@
+"""Claims about the MAVLink side: the flight side flies a drawn maneuver on the simulated vehicle over MAVLink (UDP
+loopback) as it would command ArduCopter in GUIDED mode, its IMU-only track follows the vehicle's true motion within
+the paper's drift, and a hostile peer cannot crash the vehicle or steer it outside GUIDED."""
+
+import socket
+
+import numpy as np
+import pytest
+
+pytest.importorskip("pymavlink", reason="pymavlink is not installed")
+
+from pymavlink import mavutil  # noqa: E402
+from pymavlink.dialects.v20 import common as mav  # noqa: E402
+
+from semperfi.defense.identifier import GpsTrack, ImuTrack, paper_test  # noqa: E402
+from semperfi.flight.maneuver import ManeuverLimits, draw  # noqa: E402
+from semperfi.flight.mavlink_pilot import Pilot  # noqa: E402
+from semperfi.sim.mavlink_vehicle import MODES, MavlinkVehicle  # noqa: E402
+
+TIME_SCALE = 20.0
+
+
+def _free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def vehicle():
+    port = _free_port()
+    v = MavlinkVehicle(port, seed=4, heading_rad=0.6, time_scale=TIME_SCALE).start()
+    yield v, port
+    v.close()
+
+
+def _truth_during(v, flown):
+    return flown.reported_t_s, flown.reported_ned_m - flown.reported_ned_m[0]
+
+
+def test_a_drawn_maneuver_flown_over_mavlink_is_tracked_by_the_imu(vehicle):
+    v, port = vehicle
+    maneuver = draw(ManeuverLimits(), track_heading_rad=0.6)
+    pilot = Pilot(f"udpout:127.0.0.1:{port}", timeout_s=10)
+    try:
+        flown = pilot.fly(maneuver)
+    finally:
+        pilot.close()
+    assert v.mode == MODES["LOITER"], "the vehicle is given back to the mode it was in"
+    t, truth = _truth_during(v, flown)
+    end = truth[-1]
+    planned_end = np.array([maneuver.north_m[-1], maneuver.east_m[-1], maneuver.down_m[-1]])
+    assert np.hypot(*end[:2]) >= 25.0, f"the vehicle moved {np.hypot(*end[:2]):.1f} m"
+    assert np.linalg.norm(end - planned_end) < 8.0, (end, planned_end)   # a velocity loop with gusts lags the plan
+    ins = flown.ins.pos_ned_m
+    t_ins = flown.ins.t_s
+    ins_at = np.stack([np.interp(t, t_ins, ins[:, k] - ins[0, k]) for k in range(3)], axis=-1)
+    drift = np.linalg.norm(ins_at - truth, axis=1)
+    assert drift.max() < 6.0, f"INS drifted {drift.max():.1f} m from the truth"
+    imu = ImuTrack(t_ins, ins[:, 0], ins[:, 1], ins[:, 2])
+    assert not paper_test(imu, GpsTrack(t, *truth.T)).adversarial, "the true track is legitimate"
+    spoofed = GpsTrack(t, np.zeros_like(t), np.zeros_like(t), np.zeros_like(t))   # a static spoofed position
+    assert paper_test(imu, spoofed).adversarial
+
+
+def test_setpoints_outside_guided_and_hostile_bytes_are_ignored(vehicle):
+    v, port = vehicle
+    peer = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=66, dialect="common")
+    raw = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        peer.mav.heartbeat_send(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+        assert peer.recv_match(type="HEARTBEAT", blocking=True, timeout=5) is not None
+        start = v.vehicle.pos_ned_m.copy()
+        for _ in range(20):   # LOITER: a velocity stream must not move it
+            peer.mav.set_position_target_local_ned_send(0, 1, 1, mav.MAV_FRAME_LOCAL_NED, 0b110111000111,
+                                                        0, 0, 0, 8.0, 0, 0, 0, 0, 0, 0, 0)
+        for junk in (b"\xfd\xff" + bytes(300), b"\x00" * 10, bytes(range(256))):
+            raw.sendto(junk, ("127.0.0.1", port))
+        peer.mav.command_long_send(1, 1, mav.MAV_CMD_DO_SET_MODE, 0, 1, float("nan"), 0, 0, 0, 0, 0)
+        peer.mav.command_long_send(1, 1, 31999, 0, 0, 0, 0, 0, 0, 0, 0)   # unknown command
+        acks = [peer.recv_match(type="COMMAND_ACK", blocking=True, timeout=5) for _ in range(2)]
+        assert [a.result for a in acks] == [mav.MAV_RESULT_DENIED, mav.MAV_RESULT_UNSUPPORTED]
+        peer.mav.command_long_send(1, 1, mav.MAV_CMD_DO_SET_MODE, 0, 1, MODES["GUIDED"], 0, 0, 0, 0, 0)
+        assert peer.recv_match(type="COMMAND_ACK", blocking=True, timeout=5).result == mav.MAV_RESULT_ACCEPTED
+        peer.mav.set_position_target_local_ned_send(0, 1, 1, mav.MAV_FRAME_LOCAL_NED, 0b110111000111,
+                                                    0, 0, 0, float("inf"), 0, 0, 0, 0, 0, 0, 0)
+        peer.mav.set_position_target_local_ned_send(0, 1, 1, mav.MAV_FRAME_GLOBAL_INT, 0b110111000111,
+                                                    0, 0, 0, 3.0, 0, 0, 0, 0, 0, 0, 0)
+        hb = peer.recv_match(type="HEARTBEAT", blocking=True, timeout=5)
+        assert hb is not None and hb.custom_mode == MODES["GUIDED"], "the vehicle still answers"
+        assert np.linalg.norm(v.vehicle.pos_ned_m - start) < 2.0, "nothing it was sent moved it"
+        assert v.setpoints == 0 and v.rejected >= 20 + 3 + 2
+    finally:
+        raw.close()
+        peer.close()
