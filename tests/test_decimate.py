@@ -47,3 +47,16 @@ def test_out_of_band_tone_is_rejected_not_aliased():
 def test_bad_processing_rate_is_one_line(fs_in, fs_out, word):
     with pytest.raises(ValueError, match=word):
         decimation_factor(fs_in, fs_out)
+
+
+def test_kernel_matches_its_upfirdn_reference():
+    from semperfi.iq.decimate import _fir_decimate, reference_process
+    rng = np.random.default_rng(4)
+    for m in (2, 5, 6):
+        dec = StreamDecimator(m)
+        ext = (rng.standard_normal(5000) + 1j * rng.standard_normal(5000)).astype(np.complex64) * 100
+        for phase in (0, 1, m - 1):
+            want = reference_process(dec.taps, ext, phase, m)
+            got = np.empty(len(want), dtype=np.complex64)
+            _fir_decimate(ext.view(np.float32), dec.taps[::-1].copy(), phase, m, got.view(np.float32))
+            assert np.abs(got - want).max() < 1e-3 * np.abs(want).max(), (m, phase)

@@ -1,8 +1,9 @@
 """Streaming anti-alias decimation: a 25 MSa/s recording (TEXBAT) brought to a processing rate in bounded memory.
 
-A linear-phase FIR low-pass (scipy.signal.firwin, Kaiser window) runs polyphase (scipy.signal.upfirdn computes
-only the kept outputs) over consecutive chunks; the filter's tail carries over between chunks, so the output is
-the same however the input is chunked. The filter's delay is compensated: output sample j is input time j * M.
+A linear-phase FIR low-pass (scipy.signal.firwin, Kaiser window) computes only the kept outputs over consecutive
+chunks (a numba kernel in float32; scipy.signal.upfirdn is its slow reference); the filter's tail carries over
+between chunks, so the output is the same however the input is chunked. The filter's delay is compensated: output
+sample j is input time j * M.
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ from __future__ import annotations
 import math
 from typing import Iterable, Iterator
 
+import numba
 import numpy as np
 from scipy import signal
 
@@ -41,6 +43,7 @@ class StreamDecimator:
         n_taps = 2 * TAPS_PER_PHASE * m + 1
         self.taps = (signal.firwin(n_taps, PASSBAND / m, window=("kaiser", 6.0)) if m > 1
                      else np.ones(1)).astype(np.float32)
+        self._reversed_taps = np.ascontiguousarray(self.taps[::-1])
         self._tail = np.zeros(len(self.taps) - 1, dtype=np.complex64)   # the last L-1 inputs seen
         self._phase = 0             # where, past the tail, the next kept output's newest input sits
         self._skip = TAPS_PER_PHASE if m > 1 else 0   # outputs before input sample 0 (the filter's delay)
@@ -54,16 +57,40 @@ class StreamDecimator:
         ext = np.concatenate([self._tail, x])
         # Full-convolution index n of ext holds the filter output whose newest input is ext[n]; keep n = n_tail +
         # phase + j*M. Feeding ext[phase:] makes those indices n_tail + j*M, and n_tail is a multiple of M.
-        y = signal.upfirdn(self.taps, ext[self._phase:], 1, m)
-        first = n_tail // m
         count = max(0, (len(ext) - self._phase - n_tail + m - 1) // m)
-        out = y[first:first + count].astype(np.complex64)
+        out = np.empty(count, dtype=np.complex64)
+        _fir_decimate(ext.view(np.float32), self._reversed_taps, self._phase, m, out.view(np.float32))
         self._phase = self._phase + count * m - len(x)
         self._tail = ext[len(ext) - n_tail:].copy()
         if self._skip:
             drop = min(self._skip, len(out))
             out, self._skip = out[drop:], self._skip - drop
         return out
+
+
+def reference_process(taps: np.ndarray, ext: np.ndarray, phase: int, m: int) -> np.ndarray:
+    """The slow reference of the kernel: the outputs whose newest input is ext[phase + L-1 + j*M]."""
+    n_tail = len(taps) - 1
+    y = signal.upfirdn(taps, ext[phase:], 1, m)
+    count = max(0, (len(ext) - phase - n_tail + m - 1) // m)
+    return y[n_tail // m:n_tail // m + count].astype(np.complex64)
+
+
+@numba.njit(cache=True, fastmath=True, nogil=True)
+def _fir_decimate(ext_iq, reversed_taps, phase, m, out_iq):
+    """out[j] = sum_k taps[k] ext[phase + L-1 + j*M - k], on interleaved float32 I/Q (taps reversed, so the inner
+    loop runs forward over memory)."""
+    n_taps = len(reversed_taps)
+    for j in range(len(out_iq) // 2):
+        first = phase + j * m
+        re = np.float32(0.0)
+        im = np.float32(0.0)
+        for k in range(n_taps):
+            h = reversed_taps[k]
+            re += h * ext_iq[2 * (first + k)]
+            im += h * ext_iq[2 * (first + k) + 1]
+        out_iq[2 * j] = re
+        out_iq[2 * j + 1] = im
 
 
 def decimate_chunks(chunks: Iterable[np.ndarray], factor: int) -> Iterator[np.ndarray]:

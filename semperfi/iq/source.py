@@ -30,6 +30,7 @@ LIVE_WINDOW_S = 5.0      # wall time over which a live stream's rate is judged
 SLOW_FRACTION = 0.9      # arriving below this fraction of the stated rate, while we wait, is a losing stream
 WAITING_FRACTION = 0.5   # ... "while we wait": at least this share of the window spent blocked on the stream
 LAGGING_FRACTION = 0.98  # consuming below this fraction without waiting: we are behind the live stream
+MAX_READ_SAMPLES = 1 << 20   # input samples per read: a 25 MSa/s stream costs 8 MB at a time, not 0.1 s's 20 MB
 
 
 class SourceError(ValueError):
@@ -173,7 +174,7 @@ class SampleSource:
         if not self._skipped:
             self._skip()
         step = self.factor * self.fmt.samples_per_block
-        n_in = max(step, int(round(chunk_s * self.fs_in_hz)) // step * step)
+        n_in = max(step, min(int(round(chunk_s * self.fs_in_hz)), MAX_READ_SAMPLES) // step * step)
         watch = _LiveWatch(self) if self.live else None
         while self.stop_samples is None or self.samples_in < self.stop_samples:
             want = n_in if self.stop_samples is None else min(n_in, self.stop_samples - self.samples_in)
