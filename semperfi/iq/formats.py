@@ -148,23 +148,17 @@ def decode_items(items: np.ndarray, fmt: SampleFormat) -> np.ndarray:
     first, i.e. a spectrally inverted signal); real formats give x + 0j.
     """
     items = np.asarray(items)
-    if fmt.bits:
-        values = _packed_table(fmt.bits, fmt.sign_magnitude, fmt.msb_first)[items.astype(np.uint8)].reshape(-1)
-        if not fmt.is_complex:
-            out = np.zeros(values.size, dtype=np.complex64)
-            out.real = values
-            return out
-        if fmt.iq_swapped:
-            values = values.reshape(-1, 2)[:, ::-1].copy()
-        return values.reshape(-1).view(np.complex64)
     if fmt.is_complex and not fmt.is_integer:
         out = np.array(items, dtype=np.complex64)   # a copy in native byte order, detached from any memmap
         if fmt.iq_swapped:
             out = out.view(np.float32).reshape(-1, 2)[:, ::-1].copy().view(np.complex64).ravel()
         return out
-    values = items.astype(np.float32)
-    if fmt.offset:
-        values -= np.float32(fmt.offset)
+    if fmt.bits:
+        values = _packed_table(fmt.bits, fmt.sign_magnitude, fmt.msb_first)[items.astype(np.uint8)].reshape(-1)
+    else:
+        values = items.astype(np.float32)
+        if fmt.offset:
+            values -= np.float32(fmt.offset)
     if not fmt.is_complex:
         out = np.zeros(values.size, dtype=np.complex64)
         out.real = values
