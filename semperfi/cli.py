@@ -241,6 +241,67 @@ def _print_run_summary(summary) -> None:
 
 
 @main.command()
+@click.option("--port", type=click.IntRange(1, 65535), default=14550, show_default=True, help="UDP port to listen on")
+@click.option("--seed", type=int, default=0, show_default=True, help="seed of the IMU errors and the gusts")
+@click.option("--altitude", "altitude_m", type=click.FloatRange(1.0, 1000.0), default=50.0, show_default=True)
+@click.option("--heading", "heading_deg", type=click.FloatRange(-360.0, 360.0), default=0.0, show_default=True)
+@click.option("--time-scale", type=click.FloatRange(0.01, 100.0), default=1.0, show_default=True,
+              help="vehicle seconds per wall second")
+def vehicle(port, seed, altitude_m, heading_deg, time_scale) -> None:
+    """A simulated multicopter behind a MAVLink endpoint (UDP 127.0.0.1:PORT), as ArduCopter in GUIDED obeys it."""
+    import math
+    import threading
+
+    from .sim.mavlink_vehicle import MavlinkVehicle
+
+    try:
+        v = MavlinkVehicle(port, seed=seed, altitude_m=altitude_m, heading_rad=math.radians(heading_deg),
+                           time_scale=time_scale)
+    except (ValueError, OSError) as exc:
+        _fail(f"cannot start the vehicle on port {port}: {exc}")
+    click.echo(f"vehicle on udp 127.0.0.1:{port}, airborne at {altitude_m:g} m in LOITER; Ctrl-C stops it")
+    try:
+        v.run(threading.Event())
+    except KeyboardInterrupt:
+        click.echo(f"stopped at t = {v.t_s:.1f} s; {v.setpoints} setpoints obeyed, {v.rejected} inputs rejected")
+
+
+@main.command()
+@click.option("--vehicle", "url", default="udpout:127.0.0.1:14550", show_default=True,
+              help="the vehicle's MAVLink address (pymavlink connection string)")
+@click.option("-o", "--out", "out_path", type=click.Path(dir_okay=False), help="write the IMU track here (CSV)")
+@click.option("--heading", "heading_deg", type=click.FloatRange(-360.0, 360.0), default=0.0, show_default=True,
+              help="the current track's heading (the maneuver must leave its corridor)")
+@click.option("--timeout", "timeout_s", type=click.FloatRange(1.0, 600.0), default=10.0, show_default=True)
+def fly(url, out_path, heading_deg, timeout_s) -> None:
+    """Draw a pseudorandom maneuver (from the OS's cryptographic source), fly it over MAVLink in GUIDED, and
+    dead-reckon it from the vehicle's IMU; the track (t_s in vehicle boot seconds) goes to --out."""
+    import math
+
+    from .flight.deadreckoning import write_track_csv
+    from .flight.maneuver import ManeuverLimits, draw
+    from .flight.mavlink_pilot import Pilot, PilotError
+
+    maneuver = draw(ManeuverLimits(), track_heading_rad=math.radians(heading_deg))
+    click.echo(f"maneuver: {len(maneuver.legs)} legs, {maneuver.duration_s:.1f} s, {maneuver.path_length_m:.1f} m "
+               f"flown, ends {maneuver.end_distance_m:.1f} m from its start")
+    try:
+        pilot = Pilot(url, timeout_s=timeout_s)
+        try:
+            flown = pilot.fly(maneuver)
+        finally:
+            pilot.close()
+    except (PilotError, ValueError, OSError) as exc:
+        _fail(f"flight over {url} failed: {exc}")
+    end = flown.ins.pos_ned_m[-1] - flown.ins.pos_ned_m[0]
+    click.echo(f"flown from vehicle time {flown.start_time_boot_s:.2f} s; the IMU puts the end {math.hypot(*end[:2]):.1f} m "
+               f"from the start")
+    if out_path:
+        write_track_csv(out_path, flown.ins.t_s + flown.start_time_boot_s, flown.ins.pos_ned_m)
+        click.echo(f"IMU track: {out_path}")
+
+
+@main.command()
 @click.option("--out", "out_dir", default="out/demo", show_default=True, type=click.Path(file_okay=False))
 @click.option("--duration", "duration_s", type=float, default=45.0, show_default=True)
 @click.option("--set", "sets", multiple=True, metavar="SECTION.KEY=VALUE", help="override a scenario key")

@@ -10,7 +10,8 @@ import numpy as np
 from semperfi.cli import _receiver_config
 from semperfi.defense.defended import DefendedReceiver
 from semperfi.defense.imu_track import read_imu_csv
-from semperfi.eval.flightpath import hover_maneuver_hover, ins_track, write_ins_csv, write_motion_csv
+from semperfi.eval.flightpath import hover_maneuver_hover, ins_track, write_motion_csv
+from semperfi.flight.deadreckoning import write_track_csv
 from semperfi.gps.geometry import enu_rotation
 from semperfi.receiver.run import run_file
 from semperfi.sim.run import simulate_to_file
@@ -25,7 +26,7 @@ def test_a_weaker_attacker_is_identified_by_the_maneuver_and_the_true_trajectory
     motion, or twins too close to follow apart) take the power relation it established on the others."""
     t, ned = hover_maneuver_hover(8.0, 6.0)
     write_motion_csv(tmp_path / "motion.csv", t, ned, LAT, LON, H)
-    write_ins_csv(tmp_path / "ins.csv", t, ins_track(t, ned, seed=3))
+    write_track_csv(tmp_path / "ins.csv", t, ins_track(t, ned, seed=3))
     cfg = load_scenario(None, ["signal.fs_hz=2e6", f"time.duration_s={t[-1]}", f'constellation.rinex="{brdc_path}"',
                                'time.start="2022-01-01T00:00:27"', "constellation.max_satellites=8",
                                "attacker.enabled=true", "attacker.power_advantage_db=-3.0",

@@ -93,3 +93,31 @@ def test_setpoints_outside_guided_and_hostile_bytes_are_ignored(vehicle):
     finally:
         raw.close()
         peer.close()
+
+
+def test_vehicle_and_fly_commands_fly_a_maneuver_and_write_its_imu_track(tmp_path):
+    import subprocess
+    import sys
+    port = _free_port()
+    vehicle = subprocess.Popen([sys.executable, "-m", "semperfi.cli", "vehicle", "--port", str(port),
+                                "--time-scale", str(TIME_SCALE)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert "LOITER" in vehicle.stdout.readline()
+        result = subprocess.run([sys.executable, "-m", "semperfi.cli", "fly", "--vehicle", f"udpout:127.0.0.1:{port}",
+                                 "-o", str(tmp_path / "imu.csv")], capture_output=True, text=True, timeout=120)
+    finally:
+        vehicle.terminate()
+        vehicle.wait(10)
+    assert result.returncode == 0, result.stderr
+    track = np.loadtxt(tmp_path / "imu.csv", delimiter=",", skiprows=1)
+    assert track.shape[1] == 4 and np.all(np.diff(track[:, 0]) > 0)
+    assert np.hypot(*(track[-1, 1:3] - track[0, 1:3])) > 20.0, result.stdout
+
+
+def test_fly_without_a_vehicle_is_one_error_line():
+    import subprocess
+    import sys
+    result = subprocess.run([sys.executable, "-m", "semperfi.cli", "fly", "--vehicle",
+                             f"udpout:127.0.0.1:{_free_port()}", "--timeout", "1"], capture_output=True, text=True,
+                            timeout=60)
+    assert result.returncode != 0 and result.stderr.strip().count("\n") == 0 and "HEARTBEAT" in result.stderr

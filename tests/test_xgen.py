@@ -49,11 +49,12 @@ def test_a_weaker_attacker_from_another_generator_is_identified_by_the_maneuver(
     """GPS-SDR-SIM renders the receiver along a hover-maneuver-hover motion file and a static spoofer 1 km east, 3 dB
     weaker, synchronized, on from the first sample; `run --imu` gets the INS-only track with a MEMS unit's drift.
     Without the maneuver the stronger-peak guess would cancel the legitimate signals."""
-    from semperfi.eval.flightpath import hover_maneuver_hover, ins_track, write_ins_csv, write_motion_csv
+    from semperfi.eval.flightpath import hover_maneuver_hover, ins_track, write_motion_csv
+    from semperfi.flight.deadreckoning import write_track_csv
     place = PLACES["boston"]
     t, ned = hover_maneuver_hover(8.0, 8.0)
     motion = write_motion_csv(tmp_path / "trip.csv", t, ned, place.lat_deg, place.lon_deg, place.height_m)
-    ins = write_ins_csv(tmp_path / "ins.csv", t, ins_track(t, ned, seed=7))
+    ins = write_track_csv(tmp_path / "ins.csv", t, ins_track(t, ned, seed=7))
     case = Case(place, 1000.0, -3.0, duration_s=float(round(t[-1])), motion=str(motion))
     r = run_case(case, brdc_path, tmp_path, imu_csv=ins)
     print(r)

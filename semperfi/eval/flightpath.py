@@ -46,10 +46,3 @@ def ins_track(t_s: np.ndarray, ned_m: np.ndarray, seed: int, accel_bias_mps2: fl
     bias = rng.standard_normal(3) * accel_bias_mps2
     walk = np.cumsum(rng.standard_normal(ned_m.shape) * velocity_random_walk_mps_rt_s * np.sqrt(dt), axis=0)
     return ned_m + np.asarray(origin_m) + 0.5 * bias * t ** 2 + np.cumsum(walk * dt, axis=0)
-
-
-def write_ins_csv(path: Path, t_s: np.ndarray, ned_m: np.ndarray) -> Path:
-    """`semperfi run --imu` format: t_s,north_m,east_m,down_m."""
-    np.savetxt(path, np.column_stack([t_s, ned_m]), fmt="%.3f", delimiter=",", header="t_s,north_m,east_m,down_m",
-               comments="")
-    return path

@@ -7,6 +7,7 @@ they add centimetres, far below the IMU errors the identifier tolerates.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -53,3 +54,10 @@ def integrate(t_s, accel_body_mps2, gyro_body_rps, c_nb0=None, vel0_ned_mps=None
         pos.append(p.copy())
         vel.append(v.copy())
     return InsTrack(t, np.array(pos), np.array(vel))
+
+
+def write_track_csv(path, t_s, pos_ned_m) -> Path:
+    """The IMU track in `semperfi run --imu` format: t_s,north_m,east_m,down_m."""
+    np.savetxt(path, np.column_stack([t_s, pos_ned_m]), fmt="%.3f", delimiter=",",
+               header="t_s,north_m,east_m,down_m", comments="")
+    return Path(path)
