@@ -13,10 +13,28 @@ def _fail(message: str) -> None:
     sys.exit(2)
 
 
+def _bounded_heap() -> None:
+    """Keep a streaming process's memory flat: glibc raises its mmap threshold each time a big array is freed, after
+    which the receiver's per-chunk arrays come from the heap and fragment it (the peak crept up over a long run).
+    A fixed threshold gives every array over 128 KiB back to the system when it is freed."""
+    import ctypes
+    import ctypes.util
+    name = ctypes.util.find_library("c")
+    try:
+        libc = ctypes.CDLL(name) if name else None
+        mallopt = libc.mallopt if libc is not None else None
+    except (OSError, AttributeError):   # not glibc: nothing to tune
+        return
+    if mallopt is not None:
+        m_mmap_threshold = -3
+        mallopt(m_mmap_threshold, 128 * 1024)
+
+
 @click.group()
 @click.version_option(__version__)
 def main() -> None:
     """SemperFi: a spoofer-eliminating GPS L1 C/A receiver, and the world it is proven against."""
+    _bounded_heap()
 
 
 @main.command()

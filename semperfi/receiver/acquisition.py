@@ -43,12 +43,13 @@ class Caf:
     prn: int
     doppler_hz: np.ndarray
     code_phase_chips: np.ndarray
-    power: np.ndarray         # mean over non-coherent sums of |R|^2 / sigma^2
+    power: np.ndarray | None  # mean over non-coherent sums of |R|^2 / sigma^2; None where nothing was detected
     threshold: float          # detection threshold on power
     coherent_s: float
     peaks: tuple[Peak, ...]
     second_peak_ratio: float = 0.0   # best peak over the highest cell away from its code phase (1.5 chips)
     excised_bins: int = 0            # spectral bins zeroed as DC or spurs before the search
+    mean_power: float = 1.0          # the CAF's mean (its noise floor, about 1)
 
     @property
     def best(self) -> Peak | None:
@@ -57,7 +58,7 @@ class Caf:
     @property
     def peak_ratio(self) -> float:
         """Strongest peak over the CAF's noise floor outside it (the classic acquisition metric)."""
-        return self.peaks[0].metric / float(np.mean(self.power)) if self.peaks else 0.0
+        return self.peaks[0].metric / self.mean_power if self.peaks else 0.0
 
 
 def is_cross_correlation(doppler_hz: float, cn0_dbhz: float, stronger: Iterable[tuple[float, float]],
@@ -246,6 +247,7 @@ def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: Dopple
             peaks.append(Peak(prn, float(chips % CA_CODE_LENGTH_CHIPS), doppler_hz, float(power[row, col]),
                               float(10 * np.log10(snr / (coherent_ms * CA_CODE_PERIOD_S)))))
         ratio2 = second_peak_ratio(power, *np.unravel_index(int(np.argmax(power)), power.shape), fs_hz)
-        result[prn] = Caf(prn, dopplers, code_chips, power, thr, coherent_ms * CA_CODE_PERIOD_S, tuple(peaks),
-                          ratio2, excised)
+        # 32 PRNs' CAFs at 5 MSa/s would hold 24 MB: only the detections keep theirs (for plots)
+        result[prn] = Caf(prn, dopplers, code_chips, power if peaks else None, thr, coherent_ms * CA_CODE_PERIOD_S,
+                          tuple(peaks), ratio2, excised, float(np.mean(power)))
     return result
