@@ -155,8 +155,12 @@ def acquire(file, fs_hz, fmt, iq_swap, if_hz, prn_text, start_s, coherent_ms, no
 @click.option("--imu", "imu_path", type=click.Path(dir_okay=False),
               help="INS-only track t_s,north_m,east_m,down_m (t_s from FILE's first sample) with a maneuver in it: "
                    "the Adversarial Peak Identifier decides which peaks are the attacker's")
+@click.option("--link", "link_addr", metavar="HOST:PORT",
+              help="the flight side's authenticated link (semperfi companion): on an alarm it flies a maneuver and "
+                   "sends the IMU track back")
+@click.option("--link-key", "link_key_path", type=click.Path(dir_okay=False), help="file holding the link's pre-shared key")
 def run(file, fs_hz, fmt, iq_swap, if_hz, nav_path, out_dir, config_path, defense, adversarial, sets, skip_s,
-        duration_s, fs_out_hz, imu_path) -> None:
+        duration_s, fs_out_hz, imu_path, link_addr, link_key_path) -> None:
     """Receive FILE (a recording, - for standard input, or rtl_tcp://HOST:PORT): acquisition, tracking, navigation,
     PVT; fixes.csv, NMEA, GPX, GeoJSON, RINEX observations, events.jsonl in --out."""
     import functools
@@ -169,10 +173,15 @@ def run(file, fs_hz, fmt, iq_swap, if_hz, nav_path, out_dir, config_path, defens
     try:
         cfg = _receiver_config(config_path, sets)
         imu = read_imu_csv(imu_path).shifted(-skip_s) if imu_path else None   # its t_s counts from FILE's start
-        summary = run_file(file, _sample_format(fmt, iq_swap), fs_hz, if_hz, cfg, out_dir, nav_path,
-                           live=sys.stderr.isatty(),
-                           receiver_factory=functools.partial(DefendedReceiver, imu_track=imu),
-                           skip_s=skip_s, duration_s=duration_s, fs_out_hz=fs_out_hz)
+        link = _flight_link(link_addr, link_key_path)
+        try:
+            summary = run_file(file, _sample_format(fmt, iq_swap), fs_hz, if_hz, cfg, out_dir, nav_path,
+                               live=sys.stderr.isatty(),
+                               receiver_factory=functools.partial(DefendedReceiver, imu_track=imu, flight_link=link),
+                               skip_s=skip_s, duration_s=duration_s, fs_out_hz=fs_out_hz)
+        finally:
+            if link is not None:
+                link.close()
     except (ValueError, OSError) as exc:
         _fail(str(exc))
     _print_run_summary(summary)
@@ -219,6 +228,38 @@ def clean(file, out_path, fs_hz, fmt, iq_swap, if_hz, adversarial, config_path, 
         click.echo(f"  gave up on: {s.gave_up}", err=True)
     if s.input_error:
         _fail(f"input failed after {s.duration_s:.1f} s (the cleaned samples before it are written): {s.input_error}")
+
+
+def _read_key(path) -> bytes:
+    """The link's pre-shared key: a file of at least 16 bytes (hex or raw), readable by its owner only."""
+    import os
+    import stat
+    if path is None:
+        raise ValueError("the link needs --link-key (a file holding the pre-shared key)")
+    if os.stat(path).st_mode & (stat.S_IRWXG | stat.S_IRWXO):
+        raise ValueError(f"link key {path} is readable by others: chmod 600 it")
+    raw = open(path, "rb").read(4096).strip()
+    try:
+        key = bytes.fromhex(raw.decode("ascii"))
+    except ValueError:
+        key = raw
+    if len(key) < 16:
+        raise ValueError(f"link key {path} is shorter than 16 bytes")
+    return key
+
+
+def _flight_link(addr, key_path):
+    """The receiver's end of the link to the flight side, or None."""
+    if not addr:
+        return None
+    from .flight.link import LinkError, LinkPeer
+    host, _, port = addr.rpartition(":")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ValueError(f"--link wants HOST:PORT, got {addr!r}")
+    try:
+        return LinkPeer.connect(host, int(port), _read_key(key_path))
+    except LinkError as exc:
+        raise ValueError(str(exc)) from None
 
 
 def _sample_format(fmt, iq_swap: bool):
@@ -317,6 +358,47 @@ def fly(url, out_path, heading_deg, timeout_s) -> None:
     if out_path:
         write_track_csv(out_path, flown.ins.t_s + flown.start_time_boot_s, flown.ins.pos_ned_m)
         click.echo(f"IMU track: {out_path}")
+
+
+@main.command()
+@click.option("--port", type=click.IntRange(1, 65535), required=True, help="TCP port of the link (127.0.0.1)")
+@click.option("--link-key", "link_key_path", required=True, type=click.Path(dir_okay=False))
+@click.option("--vehicle", "url", default="udpout:127.0.0.1:14550", show_default=True)
+@click.option("--maneuvers", type=click.IntRange(1, 100), default=1, show_default=True)
+def companion(port, link_key_path, url, maneuvers) -> None:
+    """The flight side: serve the receiver's link, answer alarms with maneuvers flown over MAVLink (JSON lines)."""
+    import json
+
+    from .flight.companion import serve
+    from .flight.link import LinkError
+
+    def report(event: dict) -> None:
+        click.echo(json.dumps(event, separators=(",", ":")))
+        sys.stdout.flush()
+
+    try:
+        serve(port, _read_key(link_key_path), url, report, max_maneuvers=maneuvers)
+    except (LinkError, ValueError, OSError) as exc:
+        _fail(str(exc))
+
+
+@main.command()
+@click.argument("scenario", required=False, type=click.Path(dir_okay=False))
+@click.option("--mavlink-port", type=click.IntRange(1, 65535), default=14550, show_default=True)
+@click.option("--truth", "truth_path", required=True, type=click.Path(dir_okay=False), help="vehicle truth CSV")
+@click.option("--altitude", "altitude_m", type=click.FloatRange(1.0, 1000.0), default=50.0, show_default=True)
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--set", "sets", multiple=True, metavar="SECTION.KEY=VALUE", help="override a scenario key")
+def world(scenario, mavlink_port, truth_path, altitude_m, seed, sets) -> None:
+    """The closed loop's world: the vehicle behind MAVLink, and its GPS signals (and the attacker's) as IQ on stdout."""
+    from .sim.scenario import load_scenario
+    from .sim.world import run_world
+
+    try:
+        cfg = load_scenario(scenario, list(sets))
+        run_world(cfg, sys.stdout.buffer, mavlink_port, truth_path, seed=seed, altitude_m=altitude_m)
+    except (ValueError, OSError) as exc:
+        _fail(str(exc))
 
 
 @main.command()

@@ -13,7 +13,7 @@ def test_constraints_over_1000_draws():
         heading = (i % 8) * math.pi / 4
         m = draw(limits, track_heading_rad=heading, altitude_m=40.0)
         assert m.duration_s <= 20.0
-        assert m.end_distance_m >= 30.0
+        assert m.end_distance_m >= 30.0 and m.path_length_m <= 50.0
         cross = -m.north_m * math.sin(heading) + m.east_m * math.cos(heading)
         assert np.max(np.abs(cross)) > 10.0          # leaves the 20 m corridor
         assert np.max(np.hypot(m.north_m, m.east_m)) <= limits.geofence_radius_m

@@ -12,7 +12,7 @@ from ..receiver.integrity import trusted
 from ..receiver.types import Fix
 from .detector import chips_apart
 from .guard import SpoofGuard
-from .maneuver_id import ManeuverIdentifier
+from .maneuver_id import LinkedManeuver, ManeuverIdentifier
 
 
 MAX_RECOVERED_RESIDUAL_M = 30.0
@@ -20,11 +20,14 @@ MAX_RECOVERED_RESIDUAL_M = 30.0
 
 class DefendedReceiver:
     def __init__(self, cfg: dict, fs_hz: float, if_hz: float = 0.0, assisted=None, on_fix=None, events=None,
-                 week_hint: int | None = None, imu_track=None, on_observations=None):
+                 week_hint: int | None = None, imu_track=None, on_observations=None, flight_link=None):
         """imu_track: an INS-only track (identifier.ImuTrack) with a maneuver in it, for the Adversarial Peak
-        Identifier on a recording."""
+        Identifier on a recording; flight_link: the link to a live flight side (send/poll), which flies a maneuver
+        on request and sends its IMU track back."""
         self.on_fix, self.events = on_fix, events
-        maneuver = ManeuverIdentifier(imu_track, fs_hz, if_hz) if imu_track is not None else None
+        maneuver = ManeuverIdentifier(imu_track, fs_hz, if_hz) if imu_track is not None else \
+            LinkedManeuver(flight_link, fs_hz, if_hz, ready=lambda: self.inner.last_fix is not None) \
+            if flight_link is not None else None
         self.guard = SpoofGuard(cfg, fs_hz, if_hz, events, on_cancel=self._drop_if_tracking, maneuver=maneuver,
                                 nav_context=lambda: (self.inner.ephemeris_at, self.inner.last_fix))
         self.inner = Receiver(cfg, fs_hz, if_hz, assisted, on_fix=self._label, events=events, week_hint=week_hint,

@@ -134,6 +134,7 @@ class SpoofGuard:
         if choice is not None and choice.guessed and self.attacker_stronger is not None:
             choice = by_power(alarm, self.attacker_stronger, self._inference) or choice
         if choice is not None and choice.guessed and self.maneuver is not None and self.maneuver.pending(t_s):
+            self.maneuver.request(t_s, alarm.prn)
             self.awaiting[alarm.prn] = alarm
             self._emit("identification_pending", t_s, prn=alarm.prn, maneuver_s=self.maneuver.window_s)
             return

@@ -114,6 +114,9 @@ class ManeuverIdentifier:
         self._base = 0
         self.started = self.ended = False
 
+    def request(self, t_s: float, prn: int) -> None:
+        """An alarm waits for the maneuver (a recorded track's maneuver comes when it comes)."""
+
     def pending(self, t_s: float) -> bool:
         """Whether a verdict can still come from this track's maneuver (it has not begun by t_s)."""
         return self.window_s is not None and not self.started and t_s < self.window_s[0]
@@ -151,6 +154,8 @@ class ManeuverIdentifier:
     def identify(self, ephemeris_of, fix) -> Identification:
         """The per-peak verdicts at the window's end (peaks that lost lock or lack an ephemeris are left out)."""
         self.ended = True
+        if self.track is None or self.window_s is None:
+            return Identification((), self.followers)
         t0, t1 = self.window_s
         histories = [h for h in (f.history() for f in self.followers.values()) if h is not None]
         # the satellites' own motion over the whole span the histories cover (np.interp would hold it still beyond)
@@ -160,3 +165,82 @@ class ManeuverIdentifier:
         usable = [h for h in span if h.prn in los]
         verdicts = identify_peaks(usable, los, self.track) if len(usable) >= 3 else []
         return Identification(tuple(verdicts), self.followers)
+
+
+class LinkedManeuver(ManeuverIdentifier):
+    """The identifier live, over the link to the flight side (flight/link.py's schema; `channel` has send(type,
+    payload) and poll() -> [(type, payload)], and is built outside the defence, which never imports flight/).
+
+    On the first alarm that waits for it, an "alarm" goes out as soon as the receiver can use a verdict (`ready()`:
+    it has a fix, so the satellites' lines of sight are known); when the flight side answers "maneuver_request" (it
+    has drawn a maneuver and is about to fly it) every candidate peak is followed from the next look on; its
+    "maneuver_done" brings the IMU track (t_s on the receiver's sample clock: the flight side and the receiver share
+    the vehicle's time) and, once the samples have reached the track's end, the peaks are identified and a
+    "verdict" goes back. No answer within ACCEPT_S, or no track within TRACK_S of signal time: the maneuver has
+    failed, the waiting alarms are examined afresh, and the policy's guess applies from then on.
+    """
+
+    ACCEPT_S = 5.0
+    TRACK_S = 60.0
+
+    def __init__(self, channel, fs_hz: float, if_hz: float = 0.0, ready=lambda: True):
+        self.channel, self.fs_hz, self.if_hz, self.ready = channel, fs_hz, if_hz, ready
+        self.wanted: tuple[float, int] | None = None
+        self.track, self.window_s = None, None
+        self.followers: dict[tuple[int, int], PeakFollower] = {}
+        self._buf = np.empty(0, dtype=np.complex64)
+        self._base = 0
+        self.started = self.ended = False
+        self.requested_s: float | None = None
+        self.accepted_s: float | None = None
+        self.maneuver_id: str | None = None
+        self.failed: str | None = None
+
+    def request(self, t_s: float, prn: int) -> None:
+        if self.wanted is None:
+            self.wanted = (t_s, prn)
+        self._poll(t_s)
+
+    def _poll(self, t_s: float) -> None:
+        if self.wanted is not None and self.requested_s is None and self.failed is None and self.ready():
+            self.requested_s = t_s
+            self.channel.send("alarm", {"reason": f"auxiliary peak on PRN {self.wanted[1]}", "t_s": t_s})
+        for kind, payload in self.channel.poll():
+            if kind == "maneuver_request" and self.requested_s is not None and self.accepted_s is None:
+                self.accepted_s, self.maneuver_id = t_s, str(payload.get("maneuver_id", ""))[:64]
+            elif kind == "maneuver_done" and self.accepted_s is not None and self.track is None:
+                try:
+                    self.track = ImuTrack(*(np.asarray(payload[k], dtype=float)
+                                            for k in ("t_s", "north_m", "east_m", "down_m")))
+                    self.window_s = find_maneuver(self.track) or (float(self.track.t_s[0]), float(self.track.t_s[-1]))
+                except (KeyError, TypeError, ValueError) as exc:
+                    self.failed = f"unusable IMU track ({exc})"[:200]
+        if self.failed is None and self.requested_s is not None:
+            if self.accepted_s is None and t_s - self.requested_s > self.ACCEPT_S:
+                self.failed = "the flight side did not answer the alarm"
+            elif self.accepted_s is not None and self.track is None and t_s - self.accepted_s > self.TRACK_S:
+                self.failed = "no IMU track came back from the maneuver"
+
+    def pending(self, t_s: float) -> bool:
+        self._poll(t_s)
+        return self.failed is None and not self.ended
+
+    def due_to_start(self, t_s: float) -> bool:
+        self._poll(t_s)
+        return self.accepted_s is not None and not self.started and self.failed is None
+
+    def due_to_end(self, t_s: float) -> bool:
+        self._poll(t_s)
+        if self.ended or self.requested_s is None:
+            return False
+        if self.failed is not None:
+            return True   # release the waiting alarms
+        return self.started and self.window_s is not None and t_s >= self.window_s[1]
+
+    def identify(self, ephemeris_of, fix) -> Identification:
+        ident = super().identify(ephemeris_of, fix)
+        self.channel.send("verdict", {"maneuver_id": self.maneuver_id or "", "failed": self.failed,
+                                      "adversarial": any(v.adversarial for v in ident.verdicts),
+                                      "peaks": [{"prn": v.prn, "peak": v.peak_id, "adversarial": v.adversarial,
+                                                 "decided": v.decided} for v in ident.verdicts]})
+        return ident

@@ -122,3 +122,73 @@ def receive(sock: socket.socket, codec: Codec, timeout_s: float = 5.0) -> tuple[
     except (socket.timeout, TimeoutError):
         log.warning("link: timed out waiting for a message")
         raise LinkError("timeout") from None
+
+
+class LinkPeer:
+    """One end of the link on a connected TCP socket: send() signs and writes a message; a reader thread checks every
+    frame that arrives and queues the good ones for poll(). A frame that fails its check is logged and dropped; a
+    stream that loses its framing (oversized length, peer gone) is closed, since it cannot be trusted to resync."""
+
+    def __init__(self, sock: socket.socket, key: bytes):
+        import queue
+        import threading
+        self.sock, self.codec = sock, Codec(key)
+        sock.settimeout(None)   # the reader waits as long as the peer is silent; a closed peer ends it
+        self.rejected = 0
+        self.closed: str | None = None
+        self._queue: queue.Queue = queue.Queue()
+        self._send_lock = threading.Lock()
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    @classmethod
+    def connect(cls, host: str, port: int, key: bytes, timeout_s: float = 5.0) -> LinkPeer:
+        try:
+            sock = socket.create_connection((host, int(port)), timeout=timeout_s)
+        except OSError as exc:
+            raise LinkError(f"cannot reach the link at {host}:{port}: {exc.strerror or exc}") from None
+        return cls(sock, key)
+
+    def _read(self) -> None:
+        while self.closed is None:
+            try:
+                (n,) = struct.unpack(">I", _recv_exact(self.sock, 4))
+                if n > MAX_FRAME_BYTES:
+                    raise LinkError("oversized frame: the stream cannot be trusted any more")
+                frame = _recv_exact(self.sock, n)
+            except (LinkError, OSError) as exc:
+                self.closed = str(exc) or type(exc).__name__
+                return
+            try:
+                self._queue.put(self.codec.decode(frame))
+            except LinkError:
+                self.rejected += 1
+
+    def send(self, msg_type: str, payload: dict) -> None:
+        with self._send_lock:
+            try:
+                self.sock.sendall(self.codec.encode(msg_type, payload))
+            except OSError as exc:
+                self.closed = f"send failed: {exc}"
+
+    def poll(self) -> list[tuple[str, dict]]:
+        out = []
+        while not self._queue.empty():
+            out.append(self._queue.get_nowait())
+        return out
+
+    def wait(self, timeout_s: float) -> tuple[str, dict] | None:
+        """The next message, or None after timeout_s (or when the link is closed)."""
+        import queue
+        try:
+            return self._queue.get(timeout=timeout_s)
+        except queue.Empty:
+            return None
+
+    def close(self) -> None:
+        self.closed = self.closed or "closed"
+        try:
+            self.sock.shutdown(socket.SHUT_RDWR)
+        except OSError:
+            pass
+        self.sock.close()

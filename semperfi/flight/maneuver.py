@@ -3,8 +3,8 @@
 The maneuver is drawn from the operating system's cryptographic source (``secrets``) so an attacker cannot
 predict it; it is therefore NOT seeded (the one exception to the project's seeding rule).  A maneuver is a
 sequence of constant-velocity legs in the local NED frame, flown under an acceleration limit.  Constraints
-(paper): at most 20 s, ends at least 30 m from the start, not straight (successive legs turn), and leaves the
-20 m wide no-maneuver corridor (10 m each side) around the current track.  Speed, acceleration, geofence
+(paper): at most 20 s, ends at least 30 m from the start, flies under 50 m, not straight (successive legs turn),
+and leaves the 20 m wide no-maneuver corridor (10 m each side) around the current track.  Speed, acceleration, geofence
 radius and minimum altitude are configurable; draws violating any constraint are rejected and redrawn.
 """
 from __future__ import annotations
@@ -22,6 +22,7 @@ _SYS = secrets.SystemRandom()
 class ManeuverLimits:
     max_duration_s: float = 20.0
     min_end_distance_m: float = 30.0
+    max_path_m: float = 50.0          # the paper's maneuvers stay under 50 m flown
     corridor_half_width_m: float = 10.0
     max_speed_mps: float = 4.0
     max_accel_mps2: float = 2.5
@@ -40,6 +41,8 @@ class ManeuverLimits:
             raise ValueError("speed, acceleration and dt must be positive")
         if self.min_legs < 2 or self.max_legs < self.min_legs:
             raise ValueError("need 2 <= min_legs <= max_legs (a maneuver must turn)")
+        if self.max_path_m <= self.min_end_distance_m:
+            raise ValueError("max_path_m must exceed min_end_distance_m")
         if self.geofence_radius_m <= self.min_end_distance_m:
             raise ValueError("geofence_radius_m must exceed min_end_distance_m")
 
@@ -111,6 +114,8 @@ def check(m: Maneuver, limits: ManeuverLimits, track_heading_rad: float = 0.0,
         bad.append("duration")
     if m.end_distance_m < limits.min_end_distance_m:
         bad.append("end distance")
+    if m.path_length_m > limits.max_path_m:
+        bad.append("path length")
     if np.max(np.hypot(m.north_m, m.east_m)) > limits.geofence_radius_m:
         bad.append("geofence")
     if altitude_m - np.max(m.down_m) < limits.min_altitude_m:

@@ -61,6 +61,7 @@ class MavlinkVehicle:
         self.mode = MODES["LOITER"]
         self.armed = True
         self.t_s = 0.0
+        self._k = 0
         self.rejected = 0
         self.setpoints = 0
         self._target_vel = np.zeros(3)
@@ -90,17 +91,22 @@ class MavlinkVehicle:
                 pass   # it went away
 
     def run(self, stop: threading.Event) -> None:
-        dt = 1.0 / PHYSICS_HZ
-        wall0, k = time.monotonic(), 0
+        """Step in (scaled) real time until stop is set."""
+        wall0 = time.monotonic()
         while not stop.is_set():
-            self._receive()
-            accel, gyro = self.vehicle.step(self._command(), dt)
-            k += 1
-            self.t_s = k * dt
-            self._send(k, accel, gyro)
+            self.step()
             lag = wall0 + self.t_s / self.time_scale - time.monotonic()
             if lag > 0:
                 time.sleep(lag)
+
+    def step(self) -> None:
+        """One physics step (1 / PHYSICS_HZ of vehicle time): what came in, the motion, what goes out. The closed
+        loop's world calls it as its signal time advances, so the vehicle's time is the signal's."""
+        self._receive()
+        accel, gyro = self.vehicle.step(self._command(), 1.0 / PHYSICS_HZ)
+        self._k += 1
+        self.t_s = self._k / PHYSICS_HZ
+        self._send(self._k, accel, gyro)
 
     def _command(self) -> np.ndarray:
         """The velocity the autopilot commands now: the GUIDED velocity (until it times out) or toward a position."""

@@ -1,0 +1,120 @@
+"""The closed loop, end to end, in three processes as on a UAV: the world (vehicle behind MAVLink + GPS signals with
+an attacker, `semperfi world`), the receiver (`semperfi run -` reading the world's samples, with the link), and the
+flight side (`semperfi companion`: the link server, flying maneuvers over MAVLink). The world's samples reach the
+receiver through a pipe; the receiver and the flight side talk over the authenticated link (TCP, a fresh random
+key); the flight side commands the vehicle over MAVLink (UDP).
+
+run_closed_loop() starts them, waits, and returns what happened: the flight side's report (maneuver, IMU track,
+verdict), the receiver's events and fixes, and the vehicle's true track.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import secrets
+import socket
+import subprocess
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..gps.geometry import enu_rotation, geodetic_to_ecef
+
+CLOSED_LOOP_SETTINGS = ["attacker.enabled=true", "attacker.power_advantage_db=6.0", "attacker.offset_east_m=1000.0",
+                        "signal.fs_hz=2e6", 'signal.format="ishort"', "constellation.max_satellites=8"]
+
+
+@dataclass
+class ClosedLoop:
+    out_dir: Path
+    flight: list[dict] = field(default_factory=list)     # the companion's JSON lines
+    events: list[dict] = field(default_factory=list)     # the receiver's events.jsonl
+    fixes: list[dict] = field(default_factory=list)      # the receiver's fixes.csv rows
+    truth: list[dict] = field(default_factory=list)      # the world's vehicle track
+    receiver_stdout: str = ""
+    errors: list[str] = field(default_factory=list)
+
+    def first(self, kind: str, source: str = "events") -> dict | None:
+        return next((e for e in getattr(self, source) if e.get("event") == kind), None)
+
+    def fix_errors_m(self, state: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(t_rx_s, horizontal error) of each fix (of one state) against the vehicle's true position at its time."""
+        if not self.fixes or not self.truth:
+            return np.empty(0), np.empty(0)
+        t_truth = np.array([float(r["t_s"]) for r in self.truth])
+        lat = np.array([float(r["lat_deg"]) for r in self.truth])
+        lon = np.array([float(r["lon_deg"]) for r in self.truth])
+        h = np.array([float(r["height_m"]) for r in self.truth])
+        rows = [r for r in self.fixes if state is None or r["state"] == state]
+        t = np.array([float(r["t_rx_s"]) for r in rows])
+        errors = []
+        for r, tk in zip(rows, t):
+            la, lo, hh = (np.interp(tk, t_truth, a) for a in (lat, lon, h))
+            truth = geodetic_to_ecef(np.radians(la), np.radians(lo), hh)
+            enu = enu_rotation(np.radians(la), np.radians(lo)) @ (np.array([float(r[k]) for k in ("x_m", "y_m", "z_m")]) - truth)
+            errors.append(np.hypot(enu[0], enu[1]))
+        return t, np.array(errors)
+
+
+def _free_port(kind=socket.SOCK_STREAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def run_closed_loop(out_dir: str | Path, duration_s: float, sets: list[str] = (), nav_path: str | None = None,
+                    timeout_s: float = 1800.0) -> ClosedLoop:
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    key_path = out / "link.key"
+    fd = os.open(key_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w") as f:
+        f.write(secrets.token_hex(32))
+    mavlink_port, link_port = _free_port(socket.SOCK_DGRAM), _free_port()
+    scenario = [*CLOSED_LOOP_SETTINGS, f"time.duration_s={duration_s}", *sets]
+    if nav_path:
+        scenario += [f'constellation.rinex="{nav_path}"']
+    me = [sys.executable, "-m", "semperfi.cli"]
+    flight = subprocess.Popen(me + ["companion", "--port", str(link_port), "--link-key", str(key_path),
+                                    "--vehicle", f"udpout:127.0.0.1:{mavlink_port}"],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    result = ClosedLoop(out)
+    try:
+        if flight.stdout.readline().find('"listening"') < 0:
+            raise RuntimeError(f"the flight side did not start: {flight.stderr.read()[-500:]}")
+        world = subprocess.Popen(me + ["world", "--mavlink-port", str(mavlink_port), "--truth", str(out / "truth.csv"),
+                                       *sum((["--set", s] for s in scenario), [])],
+                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        receiver_args = ["run", "-", "--fs", "2e6", "--format", "ishort", "--out", str(out / "receiver"),
+                         "--link", f"127.0.0.1:{link_port}", "--link-key", str(key_path)]
+        if nav_path:
+            receiver_args += ["--nav", str(nav_path)]
+        receiver = subprocess.run(me + receiver_args, stdin=world.stdout, capture_output=True, text=True,
+                                  timeout=timeout_s)
+        world.stdout.close()
+        world_err = world.communicate(timeout=60)[1].decode(errors="replace")
+        result.receiver_stdout = receiver.stdout
+        for name, code, err in (("receiver", receiver.returncode, receiver.stderr), ("world", world.returncode,
+                                                                                    world_err)):
+            if code not in (0, None) and err.strip():
+                result.errors.append(f"{name}: {err.strip().splitlines()[-1]}")
+    finally:
+        try:
+            flight_out, flight_err = flight.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            flight.kill()
+            flight_out, flight_err = flight.communicate()
+    result.flight = [json.loads(line) for line in flight_out.splitlines() if line.startswith("{")]
+    if flight.returncode and flight_err.strip():
+        result.errors.append(f"flight: {flight_err.strip().splitlines()[-1]}")
+    events = out / "receiver" / "events.jsonl"
+    result.events = [json.loads(line) for line in open(events)] if events.exists() else []
+    fixes = out / "receiver" / "fixes.csv"
+    result.fixes = list(csv.DictReader(open(fixes))) if fixes.exists() else []
+    truth = out / "truth.csv"
+    result.truth = list(csv.DictReader(open(truth))) if truth.exists() else []
+    return result

@@ -1,0 +1,81 @@
+"""The flight side of the closed loop, as a UAV's companion computer runs it: it serves the authenticated link to
+the receiver and answers each spoofing alarm with a maneuver.
+
+On "alarm": draw a pseudorandom maneuver (the OS's cryptographic source), answer "maneuver_request", fly it over
+MAVLink in GUIDED (mavlink_pilot), answer "maneuver_done" with the IMU-only track (t_s on the vehicle's clock), and
+wait for the "verdict". Alarms that arrive while a maneuver is under way are answered by that maneuver. Every step
+is reported to `report` as a dict (the demo prints and plots them).
+"""
+
+from __future__ import annotations
+
+import secrets
+import socket
+
+from .link import LinkError, LinkPeer
+from .maneuver import ManeuverLimits, draw
+from .mavlink_pilot import Pilot, PilotError
+
+VERDICT_WAIT_S = 120.0
+
+
+def serve(port: int, key: bytes, vehicle_url: str, report, host: str = "127.0.0.1", max_maneuvers: int = 1,
+          accept_timeout_s: float = 60.0) -> None:
+    """Accept one receiver on host:port and serve it until it hangs up or max_maneuvers are flown."""
+    srv = socket.socket()
+    srv.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    srv.bind((host, port))
+    srv.listen(1)
+    srv.settimeout(accept_timeout_s)
+    report({"event": "listening", "port": port})
+    try:
+        conn, address = srv.accept()
+    except (socket.timeout, TimeoutError):
+        raise LinkError(f"no receiver connected within {accept_timeout_s:g} s") from None
+    finally:
+        srv.close()
+    peer = LinkPeer(conn, key)
+    report({"event": "receiver_connected", "address": f"{address[0]}:{address[1]}"})
+    flown = 0
+    try:
+        while flown < max_maneuvers and peer.closed is None:
+            msg = peer.wait(1.0)
+            if msg is None or msg[0] != "alarm":
+                continue
+            report({"event": "alarm", "payload": msg[1]})
+            maneuver = draw(ManeuverLimits())
+            maneuver_id = secrets.token_hex(8)
+            peer.send("maneuver_request", {"maneuver_id": maneuver_id})
+            report({"event": "maneuver_drawn", "maneuver_id": maneuver_id, "legs": len(maneuver.legs),
+                    "duration_s": round(maneuver.duration_s, 2), "path_m": round(maneuver.path_length_m, 1),
+                    "end_distance_m": round(maneuver.end_distance_m, 1)})
+            pilot = Pilot(vehicle_url, timeout_s=10.0)
+            try:
+                result = pilot.fly(maneuver)
+            except PilotError as exc:
+                report({"event": "maneuver_failed", "error": str(exc)})
+                break
+            finally:
+                pilot.close()
+            ins, t0 = result.ins, result.start_time_boot_s
+            track = {"maneuver_id": maneuver_id, "t_s": [round(t0 + t, 3) for t in ins.t_s.tolist()],
+                     "north_m": [round(x, 3) for x in ins.pos_ned_m[:, 0].tolist()],
+                     "east_m": [round(x, 3) for x in ins.pos_ned_m[:, 1].tolist()],
+                     "down_m": [round(x, 3) for x in ins.pos_ned_m[:, 2].tolist()]}
+            peer.send("maneuver_done", track)
+            report({"event": "maneuver_done", "start_s": round(t0, 2), "end_s": track["t_s"][-1], "track": track})
+            flown += 1
+            verdict = _await(peer, "verdict", VERDICT_WAIT_S)
+            report({"event": "verdict", "payload": verdict})
+    finally:
+        peer.close()
+
+
+def _await(peer: LinkPeer, kind: str, timeout_s: float):
+    waited = 0.0
+    while waited < timeout_s and peer.closed is None:
+        msg = peer.wait(1.0)
+        waited += 1.0
+        if msg is not None and msg[0] == kind:
+            return msg[1]
+    return None
