@@ -388,22 +388,24 @@ def companion(port, link_key_path, url, maneuvers) -> None:
 @click.option("--truth", "truth_path", required=True, type=click.Path(dir_okay=False), help="vehicle truth CSV")
 @click.option("--altitude", "altitude_m", type=click.FloatRange(1.0, 1000.0), default=50.0, show_default=True)
 @click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--tee", "tee_path", type=click.Path(dir_okay=False), help="also keep the samples in this recording")
 @click.option("--set", "sets", multiple=True, metavar="SECTION.KEY=VALUE", help="override a scenario key")
-def world(scenario, mavlink_port, truth_path, altitude_m, seed, sets) -> None:
+def world(scenario, mavlink_port, truth_path, altitude_m, seed, tee_path, sets) -> None:
     """The closed loop's world: the vehicle behind MAVLink, and its GPS signals (and the attacker's) as IQ on stdout."""
     from .sim.scenario import load_scenario
     from .sim.world import run_world
 
     try:
         cfg = load_scenario(scenario, list(sets))
-        run_world(cfg, sys.stdout.buffer, mavlink_port, truth_path, seed=seed, altitude_m=altitude_m)
+        run_world(cfg, sys.stdout.buffer, mavlink_port, truth_path, seed=seed, altitude_m=altitude_m,
+                  tee_path=tee_path)
     except (ValueError, OSError) as exc:
         _fail(str(exc))
 
 
 @main.command()
 @click.option("--out", "out_dir", default="out/demo", show_default=True, type=click.Path(file_okay=False))
-@click.option("--duration", "duration_s", type=float, default=45.0, show_default=True)
+@click.option("--duration", "duration_s", type=float, default=80.0, show_default=True)
 @click.option("--set", "sets", multiple=True, metavar="SECTION.KEY=VALUE", help="override a scenario key")
 def demo(out_dir, duration_s, sets) -> None:
     """The main job on its built-in scenario: a spoofing attack, a conventional receiver it fools, and SemperFi."""

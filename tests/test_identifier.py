@@ -123,3 +123,43 @@ def test_imu_track_rejects_hostile_input():
 if __name__ == "__main__":
     for sp in (tuple(range(1, 9)), (1, 3, 5, 7), ()):
         print(sp, "hits,total,false,legit,undecided =", rates(50, sp))
+
+
+def _with_position_error(peaks, los, t, error_ned, rng, known_turn=True):
+    """The same scene seen from a position error_ned off (the spoofed fix): every satellite's predicted range change
+    is off by -(u(t) - u(0)) . error, with lines of sight turning at 1-2e-4 rad/s as GPS satellites' do."""
+    out = {}
+    for prn, L in los.items():
+        u = np.asarray(L.u_ned)
+        axis = np.cross(u, rng.normal(size=3))
+        axis *= rng.uniform(1e-4, 2e-4) / np.linalg.norm(axis)
+        turn = np.outer(t, np.cross(axis, u))      # u(t) - u(0), to first order
+        out[prn] = LineOfSight(prn, L.u_ned, t, L.sat_range_change_m - turn @ np.asarray(error_ned),
+                               L.sat_range_rate_change_mps, turn if known_turn else None)
+    return peaks, out
+
+
+@pytest.mark.parametrize("error_km", [0.5, 1.0, 3.0])
+def test_a_spoofed_fix_kilometres_off_does_not_break_the_verdict(error_km):
+    """The lines of sight come from the receiver's fix, which under attack is the spoofer's: the satellites' predicted
+    range changes drift by metres. The position error is estimated with the clock; legitimate peaks stay legitimate."""
+    false = caught = spoofed = 0
+    for seed in range(20):
+        peaks, los, imu, t, _ = scene(seed, spoofed=(1, 3, 5, 7))
+        rng = np.random.default_rng(100 + seed)
+        peaks, los = _with_position_error(peaks, los, t, (0.3 * error_km * 1e3, error_km * 1e3, 0.0), rng)
+        for v in identify_peaks(peaks, los, imu):
+            false += v.peak_id == 0 and v.adversarial
+            spoofed += v.peak_id == 1
+            caught += v.peak_id == 1 and v.adversarial
+    assert false == 0 and caught >= 0.8 * spoofed, (false, caught, spoofed)
+
+
+def test_without_the_turn_a_3_km_error_calls_legitimate_peaks_adversarial():
+    false = 0
+    for seed in range(20):
+        peaks, los, imu, t, _ = scene(seed, spoofed=(1, 3, 5, 7))
+        peaks, los = _with_position_error(peaks, los, t, (900.0, 3000.0, 0.0), np.random.default_rng(100 + seed),
+                                          known_turn=False)
+        false += sum(v.peak_id == 0 and v.adversarial for v in identify_peaks(peaks, los, imu))
+    assert false > 0, "the position error matters, so the estimate above is needed"

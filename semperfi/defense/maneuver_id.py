@@ -97,9 +97,10 @@ def lines_of_sight(prns, ephemeris_of, fix, t_s: np.ndarray) -> dict[int, LineOf
             continue
         sat = satellite_position(eph, tow)
         rng = np.linalg.norm(sat - pos, axis=1)
-        u_enu = enu @ ((sat[0] - pos) / rng[0])
-        out[prn] = LineOfSight(prn, (float(u_enu[1]), float(u_enu[0]), float(-u_enu[2])), t_s, rng - rng[0],
-                               np.gradient(rng, t_s))
+        u_enu = ((sat - pos) / rng[:, None]) @ enu.T
+        u_ned = np.column_stack([u_enu[:, 1], u_enu[:, 0], -u_enu[:, 2]])
+        out[prn] = LineOfSight(prn, tuple(float(x) for x in u_ned[0]), t_s, rng - rng[0], np.gradient(rng, t_s),
+                               u_ned - u_ned[0])
     return out
 
 

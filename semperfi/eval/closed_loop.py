@@ -67,7 +67,8 @@ def _free_port(kind=socket.SOCK_STREAM) -> int:
 
 
 def run_closed_loop(out_dir: str | Path, duration_s: float, sets: list[str] = (), nav_path: str | None = None,
-                    timeout_s: float = 1800.0) -> ClosedLoop:
+                    timeout_s: float = 1800.0, tee: bool = False) -> ClosedLoop:
+    """tee: the world also keeps its samples in out_dir/world.bin (a conventional receiver can run on them)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     key_path = out / "link.key"
@@ -87,6 +88,7 @@ def run_closed_loop(out_dir: str | Path, duration_s: float, sets: list[str] = ()
         if flight.stdout.readline().find('"listening"') < 0:
             raise RuntimeError(f"the flight side did not start: {flight.stderr.read()[-500:]}")
         world = subprocess.Popen(me + ["world", "--mavlink-port", str(mavlink_port), "--truth", str(out / "truth.csv"),
+                                       *(["--tee", str(out / "world.bin")] if tee else []),
                                        *sum((["--set", s] for s in scenario), [])],
                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE)
         receiver_args = ["run", "-", "--fs", "2e6", "--format", "ishort", "--out", str(out / "receiver"),
@@ -109,6 +111,7 @@ def run_closed_loop(out_dir: str | Path, duration_s: float, sets: list[str] = ()
             flight.kill()
             flight_out, flight_err = flight.communicate()
     result.flight = [json.loads(line) for line in flight_out.splitlines() if line.startswith("{")]
+    (out / "flight.jsonl").write_text("".join(json.dumps(e) + "\n" for e in result.flight))
     if flight.returncode and flight_err.strip():
         result.errors.append(f"flight: {flight_err.strip().splitlines()[-1]}")
     events = out / "receiver" / "events.jsonl"

@@ -1,12 +1,14 @@
-"""`semperfi demo`: the built-in scenario end to end, no files needed.
+"""`semperfi demo`: the built-in scenario end to end, no files needed: the closed loop, then a conventional receiver.
 
-A static receiver in Boston, a synthesized constellation, and an attacker 1 km east at +6 dB from the first sample:
-a conventional receiver is spoofed; SemperFi's receiver detects, cancels and fixes the true position. With no earlier
-lock to say which peak came first, the attacker's is assumed to be the stronger, and those fixes are labelled
-recovering, never recovered.
+A multicopter hovering in Boston, a synthesized constellation, and an attacker 1 km east at +6 dB from the first
+sample, synchronized to GPS time. Three processes, as on a UAV: the world (the vehicle behind MAVLink, and the
+signals rendered from where it truly is), SemperFi's receiver (reading the world's samples), and the flight side (the
+link server, flying maneuvers over MAVLink). The receiver alarms, waits for a maneuver rather than guess which peak
+is the attacker's, asks the flight side for one once it has a fix, follows every peak through it, and the IMU track
+that comes back decides them; the spoofer is cancelled and the receiver fixes the vehicle's true position. A
+conventional receiver on the same samples (the world keeps a copy) follows the spoofer.
 """
 
-import json
 from pathlib import Path
 from typing import Iterator
 
@@ -14,7 +16,6 @@ import numpy as np
 
 from .. import config
 from ..defense.config import DEFAULTS as DEFENSE
-from ..defense.defended import DefendedReceiver
 from ..defense.guard import SpoofGuard
 from ..gps.geometry import enu_rotation, geodetic_to_ecef
 from ..iq import open_iq
@@ -22,12 +23,7 @@ from ..receiver.acquisition import DopplerGrid, acquire
 from ..receiver.config import DEFAULTS as RECEIVER
 from ..receiver.plots import plot_before_after
 from ..receiver.run import run_file
-from ..sim.run import simulate_to_file
 from ..sim.scenario import load_scenario
-
-DEMO_SETTINGS = ["attacker.enabled=true", "attacker.power_advantage_db=6.0", "attacker.offset_east_m=1000.0",
-                 "signal.fs_hz=2e6", 'signal.format="ishort"', "constellation.max_satellites=8"]
-
 
 def _horizontal_errors_m(fixes_csv: Path, lat_deg: float, lon_deg: float, height_m: float, state: str | None = None):
     import csv
@@ -65,43 +61,91 @@ def _before_after_plot(path: Path, cfg: dict, out_png: Path) -> None:
 
 
 def run_demo(out_dir: str | Path, duration_s: float, sets: list[str], progress: bool = False) -> Iterator[str]:
+    from .closed_loop import CLOSED_LOOP_SETTINGS, run_closed_loop
+
     out_dir = Path(out_dir)
-    cfg = load_scenario(None, DEMO_SETTINGS + [f"time.duration_s={duration_s}"] + sets)
-    data = out_dir / "scenario.bin"
-    summary = simulate_to_file(cfg, data, progress=progress)
+    cfg = load_scenario(None, CLOSED_LOOP_SETTINGS + [f"time.duration_s={duration_s}"] + sets)
     r = cfg["receiver"]
-    yield (f"simulated {summary.duration_s:g} s at {summary.fs_hz / 1e6:g} MSa/s from {summary.start_utc}: receiver at "
-           f"{r['lat_deg']:.4f}, {r['lon_deg']:.4f}; attacker claims 1 km east at +6 dB on PRNs "
-           f"{' '.join(map(str, summary.spoofed_prns))}")
-    receiver_cfg = config.load({**RECEIVER, **DEFENSE}, None, [])
-    run_file(data, None, None, None, receiver_cfg, out_dir / "conventional", live=progress)
-    spoofed = _horizontal_errors_m(out_dir / "conventional" / "fixes.csv", r["lat_deg"], r["lon_deg"], r["height_m"])
-    yield (f"conventional receiver: {spoofed.size} fixes, {np.mean(spoofed):.0f} m from the truth (spoofed)"
-           if spoofed.size else "conventional receiver: no fix (the file is too short to decode the ephemerides)")
-    defended_cfg = config.load({**RECEIVER, **DEFENSE}, None, ['defense.mode="full"'])
-    run_file(data, None, None, None, defended_cfg, out_dir / "semperfi", live=progress,
-             receiver_factory=DefendedReceiver)
-    events = [json.loads(line) for line in open(out_dir / "semperfi" / "events.jsonl")]
-    alarm = next((e for e in events if e["event"] == "spoofing_alarm"), None)
-    recovered = next((e for e in events if e["event"] == "recovered"), None)
-    summary_event = next((e for e in events if e["event"] == "defense_summary"), {})
-    fixes_csv = out_dir / "semperfi" / "fixes.csv"
-    good = _horizontal_errors_m(fixes_csv, r["lat_deg"], r["lon_deg"], r["height_m"], "recovered")
-    assumed = _horizontal_errors_m(fixes_csv, r["lat_deg"], r["lon_deg"], r["height_m"], "recovering")
+    yield (f"closed loop, {duration_s:g} s at {cfg['signal']['fs_hz'] / 1e6:g} MSa/s: vehicle hovering at "
+           f"{r['lat_deg']:.4f}, {r['lon_deg']:.4f}; attacker 1 km east at +6 dB from the first sample; world, receiver "
+           "and flight side in three processes (pipe, authenticated link, MAVLink)")
+    loop = run_closed_loop(out_dir, duration_s, sets, tee=True)
+    for error in loop.errors:
+        yield f"error: {error}"
+    pending, alarm = loop.first("identification_pending"), loop.first("spoofing_alarm")
     if alarm:
-        yield f"SemperFi: spoofing alarm at t = {alarm['t_rx_s']:.2f} s; cancelled PRNs {summary_event.get('cancelled')}"
-    if good.size:
-        yield (f"SemperFi: {good.size} recovered fixes, {np.mean(good):.2f} m from the truth (max {np.max(good):.2f} m); "
-               f"first at t = {recovered['t_rx_s']:.1f} s, {recovered['time_to_recover_s']:.1f} s after the alarm "
-               f"(ephemerides decoded from the legitimate signals)")
-    if assumed.size:
-        yield (f"SemperFi: {assumed.size} fixes labelled recovering, {np.mean(assumed):.2f} m from the truth (max "
-               f"{np.max(assumed):.2f} m): on PRNs {summary_event.get('guessed')} the attacker's peak was assumed to be "
-               f"the stronger (no earlier lock to tell), so they are not called recovered")
-    if not good.size and not assumed.size:
-        yield "SemperFi: no fix after cancellation yet (run longer: --duration 60)"
-    for prn, stages in sorted(summary_event.get("attenuation_db", {}).items(), key=lambda kv: int(kv[0])):
+        yield (f"SemperFi: spoofing alarm at t = {alarm['t_rx_s']:.2f} s; the receiver waits for a maneuver instead of "
+               f"guessing which peak is the attacker's")
+    asked, drawn, done = (loop.first(k, "flight") for k in ("alarm", "maneuver_drawn", "maneuver_done"))
+    if asked and drawn and done:
+        yield (f"flight side: asked at t = {asked['payload']['t_s']:.1f} s (the receiver's first fix); maneuver of "
+               f"{drawn['legs']} legs drawn from the OS's cryptographic source, flown over MAVLink in GUIDED from "
+               f"t = {done['start_s']:.1f} to {done['end_s']:.1f} s: {drawn['duration_s']:.1f} s, {drawn['path_m']:.1f} m "
+               f"flown, ending {drawn['end_distance_m']:.1f} m from its start (paper: 10-20 s, under 50 m)")
+    verdict = loop.first("verdict", "flight")
+    if verdict:
+        peaks = verdict["payload"]["peaks"]
+        adversarial = sorted({p["prn"] for p in peaks if p["decided"] and p["adversarial"]})
+        legit = sorted({p["prn"] for p in peaks if p["decided"] and not p["adversarial"]})
+        yield (f"identification: peaks that do not follow the vehicle's motion on PRNs {adversarial}; peaks that do on "
+               f"PRNs {legit}; {sum(not p['decided'] for p in peaks)} undecided")
+    summary = loop.first("defense_summary") or {}
+    recovered = loop.first("recovered")
+    t, err = loop.fix_errors_m("recovered")
+    if len(t):
+        yield (f"SemperFi: cancelled PRNs {summary.get('cancelled')}; {len(t)} recovered fixes from t = {t[0]:.1f} s, "
+               f"{np.mean(err):.2f} m from the vehicle's true position (max {np.max(err):.2f} m)")
+    else:
+        yield "SemperFi: no recovered fix yet (run longer: --duration 100)"
+    wrong = sum(int(np.sum(loop.fix_errors_m(s)[1] > 10.0)) for s in ("nominal", "recovered"))
+    yield f"fixes labelled nominal or recovered farther than 10 m from the truth: {wrong}"
+    for prn, stages in sorted(summary.get("attenuation_db", {}).items(), key=lambda kv: int(kv[0])):
         values = [v for st in stages for v in st["attenuation_db"]]
         yield f"  PRN {int(prn):>2}: spoofer attenuated by {values[-1] if values else '?'} dB"
-    _before_after_plot(data, defended_cfg, out_dir / "acquisition-before-after.png")
-    yield f"outputs in {out_dir}: semperfi/ (fixes.csv, NMEA, GPX, GeoJSON, events.jsonl), conventional/, acquisition-before-after.png"
+    receiver_cfg = config.load({**RECEIVER, **DEFENSE}, None, [])
+    data = out_dir / "world.bin"
+    run_file(data, None, None, None, receiver_cfg, out_dir / "conventional", live=progress)
+    spoofed = _horizontal_errors_m(out_dir / "conventional" / "fixes.csv", r["lat_deg"], r["lon_deg"], r["height_m"])
+    yield (f"conventional receiver on the same samples: {spoofed.size} fixes, {np.mean(spoofed):.0f} m from the truth "
+           "(spoofed)" if spoofed.size else "conventional receiver: no fix")
+    _tracks_plot(loop, r, out_dir / "tracks.png")
+    _before_after_plot(data, config.load({**RECEIVER, **DEFENSE}, None, ['defense.mode="full"']),
+                       out_dir / "acquisition-before-after.png")
+    yield (f"outputs in {out_dir}: receiver/ (fixes.csv, NMEA, GPX, GeoJSON, RINEX, events.jsonl), flight.jsonl, "
+           "truth.csv, conventional/, tracks.png, acquisition-before-after.png")
+
+
+def _tracks_plot(loop, r: dict, out_png: Path) -> None:
+    """North-east tracks: the vehicle's truth, SemperFi's fixes by state, the IMU track of the maneuver."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    origin = geodetic_to_ecef(np.radians(r["lat_deg"]), np.radians(r["lon_deg"]), r["height_m"])
+    rot = enu_rotation(np.radians(r["lat_deg"]), np.radians(r["lon_deg"]))
+    fig, ax = plt.subplots(figsize=(7, 6))
+    truth = np.array([[float(x["east_m"]), float(x["north_m"])] for x in loop.truth])
+    ax.plot(truth[:, 0], truth[:, 1], color="k", lw=2, label="truth")
+    for state, color in (("spoofing_detected", "tab:red"), ("recovering", "tab:orange"), ("recovered", "tab:green"),
+                         ("nominal", "tab:blue")):
+        rows = [f for f in loop.fixes if f["state"] == state]
+        if rows:
+            enu = (np.array([[float(f[k]) for k in ("x_m", "y_m", "z_m")] for f in rows]) - origin) @ rot.T
+            near = np.hypot(enu[:, 0], enu[:, 1]) < 200   # the spoofed fixes sit 1 km east: noted, not drawn
+            ax.scatter(enu[near, 0], enu[near, 1], s=4, color=color,
+                       label=f"GPS fixes: {state} ({len(rows) - int(near.sum())} beyond 200 m not shown)")
+    done = loop.first("maneuver_done", "flight")
+    if done:
+        t0 = done["track"]["t_s"][0]
+        t_truth = np.array([float(x["t_s"]) for x in loop.truth])
+        at = np.array([np.interp(t0, t_truth, truth[:, k]) for k in range(2)])
+        e, n = np.array(done["track"]["east_m"]), np.array(done["track"]["north_m"])
+        ax.plot(at[0] + e - e[0], at[1] + n - n[0], color="tab:purple", ls="--", label="IMU track (maneuver)")
+    ax.set_xlabel("east (m)")
+    ax.set_ylabel("north (m)")
+    ax.set_aspect("equal")
+    ax.legend(fontsize=7, loc="best")
+    ax.set_title("closed loop: the vehicle, its GPS fixes and its IMU")
+    fig.tight_layout()
+    fig.savefig(out_png, dpi=120)
+    plt.close(fig)

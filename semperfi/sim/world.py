@@ -18,14 +18,16 @@ import numpy as np
 import pymap3d
 
 from ..gps.geometry import enu_rotation
+from ..iq import IqWriter
 from ..iq.formats import as_format, encode_samples
 from .mavlink_vehicle import PHYSICS_HZ, MavlinkVehicle
 from .simulate import CHUNK_S, make_live_simulator
 
 
 def run_world(cfg: dict, out: BinaryIO, mavlink_port: int, truth_path: str | Path, seed: int = 0,
-              altitude_m: float = 50.0, scale: float = 1.0) -> int:
-    """Render cfg's scenario around the live vehicle into `out` (cfg's signal.format); returns chunks written."""
+              altitude_m: float = 50.0, scale: float = 1.0, tee_path: str | Path | None = None) -> int:
+    """Render cfg's scenario around the live vehicle into `out` (cfg's signal.format); returns chunks written.
+    tee_path: also keep the samples in a recording (with its SigMF sidecar), for other receivers afterwards."""
     sim, motion = make_live_simulator(cfg)
     r = cfg["receiver"]
     lat, lon, h = r["lat_deg"], r["lon_deg"], r["height_m"]
@@ -35,6 +37,8 @@ def run_world(cfg: dict, out: BinaryIO, mavlink_port: int, truth_path: str | Pat
     fmt = as_format(cfg["signal"]["format"])
     steps = int(round(CHUNK_S * PHYSICS_HZ))
     written = 0
+    tee = IqWriter(tee_path, fmt, sim.fs_hz, if_hz=sim.if_hz, scale=scale, description="SemperFi closed-loop world",
+                   datetime_utc=sim.t0.to_datetime().isoformat()) if tee_path else None
     with open(truth_path, "w", newline="") as f:
         truth = csv.writer(f, lineterminator="\n")
         truth.writerow(["t_s", "north_m", "east_m", "down_m", "lat_deg", "lon_deg", "height_m"])
@@ -42,6 +46,8 @@ def run_world(cfg: dict, out: BinaryIO, mavlink_port: int, truth_path: str | Pat
             for k, chunk in enumerate(sim.chunks()):
                 items, _ = encode_samples(chunk, fmt, scale)
                 out.write(items.tobytes())
+                if tee is not None:
+                    tee.write(chunk)
                 written += 1
                 for _ in range(steps):
                     vehicle.step()
@@ -57,4 +63,6 @@ def run_world(cfg: dict, out: BinaryIO, mavlink_port: int, truth_path: str | Pat
             pass   # the receiver stopped reading: the world ends with it
         finally:
             vehicle.close()
+            if tee is not None:
+                tee.close()
     return written
