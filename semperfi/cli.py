@@ -405,7 +405,7 @@ def world(scenario, mavlink_port, truth_path, altitude_m, seed, tee_path, sets) 
 
 @main.command()
 @click.option("--out", "out_dir", default="out/demo", show_default=True, type=click.Path(file_okay=False))
-@click.option("--duration", "duration_s", type=float, default=80.0, show_default=True)
+@click.option("--duration", "duration_s", type=float, default=95.0, show_default=True)
 @click.option("--set", "sets", multiple=True, metavar="SECTION.KEY=VALUE", help="override a scenario key")
 def demo(out_dir, duration_s, sets) -> None:
     """The main job on its built-in scenario: a spoofing attack, a conventional receiver it fools, and SemperFi."""

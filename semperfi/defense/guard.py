@@ -168,18 +168,26 @@ class SpoofGuard:
             elif v.decided and v.prn in lone:
                 self.maneuver_legit.add(v.prn)
         decided = {}   # PRN -> (attacker's follower, the other): one peak shown not to follow, its twin shown to
+        flagged = {}   # also the PRNs where one peak was shown not to follow and the other was not flagged
         for prn in self.awaiting:
-            verdict = {v.peak_id: v for v in ident.verdicts if v.prn == prn and v.decided}
-            if len(verdict) == 2 and verdict[0].adversarial != verdict[1].adversarial:
-                adv = 0 if verdict[0].adversarial else 1
-                decided[prn] = (ident.followers[(prn, adv)], ident.followers[(prn, 1 - adv)])
-        # the followers' C/N0 over the whole maneuver, not one look's peak metrics, says which was the stronger
-        gaps_db = [adv.mean_cn0_dbhz() - legit.mean_cn0_dbhz() for adv, legit in decided.values()]
+            verdict = {v.peak_id: v for v in ident.verdicts if v.prn == prn}
+            if len(verdict) != 2:
+                continue
+            adv = [k for k, v in verdict.items() if v.decided and v.adversarial]
+            if len(adv) != 1:
+                continue
+            pair = (ident.followers[(prn, adv[0])], ident.followers[(prn, 1 - adv[0])])
+            flagged[prn] = pair
+            if verdict[1 - adv[0]].decided:
+                decided[prn] = pair
+        # the followers' C/N0 over the whole maneuver, not one look's peak metrics, says which was the stronger; the
+        # one-sided PRNs count too: a legitimate peak wrongly flagged would show the opposite sign and stop it
+        gaps_db = [adv.mean_cn0_dbhz() - legit.mean_cn0_dbhz() for adv, legit in flagged.values()]
         relation = {g > 0 for g in gaps_db}
-        self._emit("attacker_power", t_s, gaps_db={prn: round(g, 1) for prn, g in zip(decided, gaps_db)})
-        if len(decided) >= 3 and len(relation) == 1 and min(abs(g) for g in gaps_db) >= POWER_MARGIN_DB / 2:
+        self._emit("attacker_power", t_s, gaps_db={prn: round(g, 1) for prn, g in zip(flagged, gaps_db)})
+        if len(flagged) >= 3 and len(relation) == 1 and min(abs(g) for g in gaps_db) >= POWER_MARGIN_DB / 2:
             self.attacker_stronger = relation.pop()
-            self._inference = (f"inferred: on the {len(decided)} PRNs the maneuver decided, the attacker's peak was "
+            self._inference = (f"inferred: on the {len(flagged)} PRNs the maneuver decided, the attacker's peak was "
                                f"the {'stronger' if self.attacker_stronger else 'weaker'}")
         for prn, alarm in list(self.awaiting.items()):
             del self.awaiting[prn]

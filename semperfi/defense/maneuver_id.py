@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..gps.constants import L1_WAVELENGTH_M, SPEED_OF_LIGHT_M_S
+from ..gps.constants import L1_WAVELENGTH_M
 from ..gps.ephemeris import satellite_position
 from ..gps.geometry import enu_rotation
 from ..receiver.acquisition import Peak
@@ -27,6 +27,9 @@ FOLLOW_LOOP = LoopConfig(pull_in_ms=300, min_cn0_dbhz=20.0, lost_windows=10)
 HISTORY_EVERY_MS = 20         # one range sample per 20 ms is plenty for a 10-20 s maneuver
 SETTLE_S = 0.5                # the window's first half second: the followers' loops settle
 FLIGHT_TIME_S = 0.075         # signal flight time, for the satellites' transmit instants (its changes are negligible)
+# carrier ranges are good to millimetres: what remains is the INS drift over the maneuver (under 2 m at the paper's
+# IMU level over 20 s) -- a code-range tolerance (4.5 m) would let a spoofed peak with a small signature pass
+CARRIER_RANGE_TOL_M = 2.5
 
 
 class PeakFollower:
@@ -38,7 +41,6 @@ class PeakFollower:
         st = initial_state(peak.code_phase_chips, peak_sample, peak.doppler_hz, fs_hz, start_sample)
         self.channel = Channel(prn, fs_hz, if_hz, st, FOLLOW_LOOP)
         self.t_s: list[float] = []
-        self.range_m: list[float] = []
         self.carrier_range_m: list[float] = []
         self.cn0_dbhz: list[float] = []
 
@@ -54,7 +56,6 @@ class PeakFollower:
                 continue
             i = ms % ch.HISTORY_MS
             self.t_s.append(float(ch.epoch_sample[i]) / self.fs_hz)
-            self.range_m.append(SPEED_OF_LIGHT_M_S * (float(ch.epoch_sample[i]) / self.fs_hz - ms * 1e-3))
             self.carrier_range_m.append(-L1_WAVELENGTH_M * float(ch.carrier_cycles[i]))
             self.cn0_dbhz.append(float(ch.cn0_dbhz))
 
@@ -65,8 +66,9 @@ class PeakFollower:
     def history(self) -> PeakHistory | None:
         if len(self.t_s) < 10 or not self.channel.locked:
             return None
-        # the range is the integral of the Doppler, to millimetres: the loop's noisy Doppler adds nothing to it
-        return PeakHistory(self.prn, self.peak_id, np.array(self.t_s), np.array(self.range_m))
+        # the carrier's range (the integral of the Doppler), to millimetres: the code's metre of noise would blur
+        # a legitimate peak's fit and hide a spoofed peak whose line of sight moved little
+        return PeakHistory(self.prn, self.peak_id, np.array(self.t_s), np.array(self.carrier_range_m))
 
     def peak_at(self, sample: int) -> Peak | None:
         """Where this peak is at an absolute sample (acquisition's convention: the chip arriving then)."""
@@ -164,7 +166,7 @@ class ManeuverIdentifier:
         t = np.linspace(min([h.t_s[0] for h in span] + [t0]), max([h.t_s[-1] for h in span] + [t1]), 201)
         los = lines_of_sight(sorted({h.prn for h in span}), ephemeris_of, fix, t) if fix is not None else {}
         usable = [h for h in span if h.prn in los]
-        verdicts = identify_peaks(usable, los, self.track) if len(usable) >= 3 else []
+        verdicts = identify_peaks(usable, los, self.track, range_tol_m=CARRIER_RANGE_TOL_M) if len(usable) >= 3 else []
         return Identification(tuple(verdicts), self.followers)
 
 

@@ -67,8 +67,10 @@ def _free_port(kind=socket.SOCK_STREAM) -> int:
 
 
 def run_closed_loop(out_dir: str | Path, duration_s: float, sets: list[str] = (), nav_path: str | None = None,
-                    timeout_s: float = 1800.0, tee: bool = False) -> ClosedLoop:
-    """tee: the world also keeps its samples in out_dir/world.bin (a conventional receiver can run on them)."""
+                    timeout_s: float = 1800.0, tee: bool = False, show: bool = False, seed: int = 0) -> ClosedLoop:
+    """tee: the world also keeps its samples in out_dir/world.bin (a conventional receiver can run on them).
+    show: the receiver draws its live channel table on this process's terminal (its errors then go there too).
+    seed: the vehicle's (wind, IMU errors) and the signals' noise; the maneuver is the OS's cryptographic draw."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     key_path = out / "link.key"
@@ -76,7 +78,7 @@ def run_closed_loop(out_dir: str | Path, duration_s: float, sets: list[str] = ()
     with os.fdopen(fd, "w") as f:
         f.write(secrets.token_hex(32))
     mavlink_port, link_port = _free_port(socket.SOCK_DGRAM), _free_port()
-    scenario = [*CLOSED_LOOP_SETTINGS, f"time.duration_s={duration_s}", *sets]
+    scenario = [*CLOSED_LOOP_SETTINGS, f"time.duration_s={duration_s}", f"signal.seed={seed + 1}", *sets]
     if nav_path:
         scenario += [f'constellation.rinex="{nav_path}"']
     me = [sys.executable, "-m", "semperfi.cli"]
@@ -88,6 +90,7 @@ def run_closed_loop(out_dir: str | Path, duration_s: float, sets: list[str] = ()
         if flight.stdout.readline().find('"listening"') < 0:
             raise RuntimeError(f"the flight side did not start: {flight.stderr.read()[-500:]}")
         world = subprocess.Popen(me + ["world", "--mavlink-port", str(mavlink_port), "--truth", str(out / "truth.csv"),
+                                       "--seed", str(seed),
                                        *(["--tee", str(out / "world.bin")] if tee else []),
                                        *sum((["--set", s] for s in scenario), [])],
                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE)
@@ -95,14 +98,14 @@ def run_closed_loop(out_dir: str | Path, duration_s: float, sets: list[str] = ()
                          "--link", f"127.0.0.1:{link_port}", "--link-key", str(key_path)]
         if nav_path:
             receiver_args += ["--nav", str(nav_path)]
-        receiver = subprocess.run(me + receiver_args, stdin=world.stdout, capture_output=True, text=True,
-                                  timeout=timeout_s)
+        receiver = subprocess.run(me + receiver_args, stdin=world.stdout, stdout=subprocess.PIPE,
+                                  stderr=None if show else subprocess.PIPE, text=True, timeout=timeout_s)
         world.stdout.close()
         world_err = world.communicate(timeout=60)[1].decode(errors="replace")
         result.receiver_stdout = receiver.stdout
         for name, code, err in (("receiver", receiver.returncode, receiver.stderr), ("world", world.returncode,
                                                                                     world_err)):
-            if code not in (0, None) and err.strip():
+            if code not in (0, None) and err and err.strip():
                 result.errors.append(f"{name}: {err.strip().splitlines()[-1]}")
     finally:
         try:

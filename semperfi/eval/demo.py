@@ -69,7 +69,7 @@ def run_demo(out_dir: str | Path, duration_s: float, sets: list[str], progress: 
     yield (f"closed loop, {duration_s:g} s at {cfg['signal']['fs_hz'] / 1e6:g} MSa/s: vehicle hovering at "
            f"{r['lat_deg']:.4f}, {r['lon_deg']:.4f}; attacker 1 km east at +6 dB from the first sample; world, receiver "
            "and flight side in three processes (pipe, authenticated link, MAVLink)")
-    loop = run_closed_loop(out_dir, duration_s, sets, tee=True)
+    loop = run_closed_loop(out_dir, duration_s, sets, tee=True, show=progress)
     for error in loop.errors:
         yield f"error: {error}"
     pending, alarm = loop.first("identification_pending"), loop.first("spoofing_alarm")
@@ -96,7 +96,9 @@ def run_demo(out_dir: str | Path, duration_s: float, sets: list[str], progress: 
         yield (f"SemperFi: cancelled PRNs {summary.get('cancelled')}; {len(t)} recovered fixes from t = {t[0]:.1f} s, "
                f"{np.mean(err):.2f} m from the vehicle's true position (max {np.max(err):.2f} m)")
     else:
-        yield "SemperFi: no recovered fix yet (run longer: --duration 100)"
+        t_r, err_r = loop.fix_errors_m("recovering")
+        yield ("SemperFi: no recovered fix yet" + (f"; {len(t_r)} fixes still recovering (a cancellation not yet "
+               f"verified), {np.mean(err_r):.1f} m from the truth" if len(t_r) else "") + " (run longer: --duration 100)")
     wrong = sum(int(np.sum(loop.fix_errors_m(s)[1] > 10.0)) for s in ("nominal", "recovered"))
     yield f"fixes labelled nominal or recovered farther than 10 m from the truth: {wrong}"
     for prn, stages in sorted(summary.get("attenuation_db", {}).items(), key=lambda kv: int(kv[0])):
