@@ -46,7 +46,11 @@ def one_run(out: Path, seed: int, duration_s: float, nav: str | None, attacker: 
     row["final_state"] = states[-1] if states else None
     row["final_error_m"] = round(float(np.mean(err[last])), 2) if len(t) else None
     row["wrong_good"] = int(sum(np.sum(loop.fix_errors_m(s)[1] > 10.0) for s in ("nominal", "recovered")))
-    row["recovered_fixes"] = len(loop.fix_errors_m("recovered")[0])
+    t_rec = loop.fix_errors_m("recovered")[0]
+    row["recovered_fixes"] = len(t_rec)
+    row["recovered_from_s"] = round(float(t_rec[0]), 1) if len(t_rec) else None
+    done = loop.first("maneuver_done", "flight")
+    row["maneuver_end_s"] = round(done["end_s"], 1) if done else None
     return row
 
 
@@ -86,6 +90,9 @@ def main() -> None:
             for key in ("duration_s", "path_m", "end_distance_m"):
                 v = [m[key] for m in man]
                 print(f"  maneuver {key}: mean {np.mean(v):.1f} (min {np.min(v):.1f}, max {np.max(v):.1f})")
+        lag = [r["recovered_from_s"] - r["maneuver_end_s"] for r in ok if r["maneuver_end_s"] is not None]
+        if lag:
+            print(f"  first recovered fix after the maneuver's end: mean {np.mean(lag):.1f} s (max {np.max(lag):.1f} s)")
         print(f"  fixes labelled nominal/recovered > 10 m from the truth: {sum(r['wrong_good'] for r in attacked)}")
     if clean:
         print(f"clean runs: {len(clean)}; with an alarm: {sum(r['alarms'] > 0 for r in clean)}; adversarial verdicts: "
