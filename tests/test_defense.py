@@ -55,6 +55,9 @@ def test_fast_kernels_equal_their_references():
     subtract_replicas(y, 0, blocks, amps, 5)
     ref = replicas_reference(5000, 0, blocks, amps, 5)
     assert np.max(np.abs(-y - ref)) < np.pi / 4096 * 0.6   # the carrier table's half-cell
+    y = np.zeros(5000, dtype=np.complex64)     # real samples at an IF: the signal and its mirror, a real result
+    subtract_replicas(y, 0, blocks, amps, 5, both_images=True)
+    assert np.max(np.abs(-y - 2 * ref.real)) < np.pi / 4096 * 1.2 and not np.any(y.imag)
     # the residual measurement: each block's correlation with its unit replica, and its mean power
     from semperfi.defense.canceller import MOD_TABLE, _residual_kernel
     from semperfi.gps.codes import ca_code
@@ -308,6 +311,45 @@ def test_clean_keeps_format_rate_and_length_and_is_deterministic(tmp_path):
     assert (cleaned.n_samples, cleaned.fs_hz, cleaned.fmt.name) == (original.n_samples, original.fs_hz, "ibyte")
     events = [json.loads(l)["event"] for l in open(tmp_path / "c1.events.jsonl")]
     assert "spoofing_alarm" in events and "defense_summary" in events
+
+
+def _power_at(x, fs_hz, prn, code_phase_chips, freq_hz, ms=20):
+    """Mean power of 1 ms correlations with one PRN's replica at a code phase and a frequency (IF + Doppler)."""
+    from semperfi.gps.codes import ca_code
+    n = int(fs_hz * 1e-3)
+    k = np.arange(n * ms)
+    code = ca_code(prn)[(np.floor(code_phase_chips + k * 1.023e6 / fs_hz).astype(np.int64)) % 1023]
+    z = x[:k.size] * code * np.exp(-2j * np.pi * freq_hz * k / fs_hz)
+    return float(np.mean(np.abs(z.reshape(ms, n).sum(axis=1)) ** 2))
+
+
+def test_clean_on_real_if_samples_removes_the_spoofer_and_its_mirror(tmp_path):
+    """Real samples at an IF hold every signal twice, at +IF and at its mirror -IF. The output is real again, so
+    the spoofer must go from both: subtracting only the +IF replica and keeping the real part leaves half of it
+    in each (-6 dB), which an unmodified receiver still tracks."""
+    from semperfi.defense.clean import clean_file
+    fs, if_hz = 4e6, 1e6
+    cfg = load_scenario(None, [f"signal.fs_hz={fs}", f"signal.if_hz={if_hz}", "time.duration_s=4.0",
+                               "constellation.max_satellites=4", "attacker.enabled=true", "attacker.time_offset_s=5e-6"])
+    simulate_to_file(cfg, tmp_path / "c.bin")   # complex at the IF; its I alone is a real front end's output
+    np.fromfile(tmp_path / "c.bin", dtype=np.int16)[0::2].tofile(tmp_path / "r.bin")
+    summary = clean_file(tmp_path / "r.bin", tmp_path / "out.bin", "short", fs, if_hz,
+                         _receiver_config(None, ['defense.mode="full"']))
+    assert summary.cancelled, summary
+    original, cleaned = open_iq(tmp_path / "r.bin", "short", fs, if_hz), open_iq(tmp_path / "out.bin")
+    assert cleaned.fmt.name == "short" and cleaned.n_samples == original.n_samples
+    at = int(3.5 * fs)
+    before, after = original.read(at, int(0.03 * fs)), cleaned.read(at, int(0.03 * fs))
+    for prn in summary.cancelled:
+        caf = acquire(before[: int(0.01 * fs)], fs, [prn], DopplerGrid(0.0, 6000.0, 100.0), if_hz, coherent_ms=1,
+                      noncoherent=10)[prn]
+        spoofer = max(caf.peaks, key=lambda p: p.metric)
+        floor = _power_at(before, fs, prn, (spoofer.code_phase_chips + 500) % 1023, if_hz + spoofer.doppler_hz)
+        for freq in (if_hz + spoofer.doppler_hz, -(if_hz + spoofer.doppler_hz)):   # the signal, its mirror
+            p0 = _power_at(before, fs, prn, spoofer.code_phase_chips, freq)
+            p1 = _power_at(after, fs, prn, spoofer.code_phase_chips, freq)
+            assert p0 > 30 * floor, (prn, freq, p0, floor)
+            assert 10 * np.log10(p0 / p1) > 12.0, (prn, freq, 10 * np.log10(p0 / p1))
 
 
 def test_defense_options_are_checked(tmp_path):

@@ -25,7 +25,7 @@ MEASURE_EVERY = 8                 # code periods per attenuation measurement
 
 
 @njit(cache=True, nogil=True)
-def _subtract_kernel(x, base_sample, blocks, amplitudes, code_ext, table):
+def _subtract_kernel(x, base_sample, blocks, amplitudes, code_ext, table, both_images):
     n_table = table.size
     for m in range(blocks.shape[0]):
         start = np.int64(blocks[m, 0]) - base_sample
@@ -39,7 +39,11 @@ def _subtract_kernel(x, base_sample, blocks, amplitudes, code_ext, table):
         ph = ph + lo * pstep
         ph -= np.floor(ph)
         for k in range(lo, hi):
-            x[start + k] -= a * code_ext[np.int64(pos)] * table[np.int64(ph * n_table)]
+            v = a * code_ext[np.int64(pos)] * table[np.int64(ph * n_table)]
+            if both_images:
+                x[start + k] -= 2.0 * v.real
+            else:
+                x[start + k] -= v
             pos += step
             ph += pstep
             if ph >= 1.0:
@@ -71,9 +75,14 @@ def _residual_kernel(x, base_sample, blocks, code_ext, table, out_beta, out_powe
         out_beta[m], out_power[m] = acc / n, power / n
 
 
-def subtract_replicas(x: np.ndarray, base_sample: int, blocks: np.ndarray, amplitudes: np.ndarray, prn: int) -> None:
-    """x -= sum over code periods of amplitude * code * carrier, the replicas described by tracking's blocks."""
-    _subtract_kernel(x, base_sample, blocks, amplitudes.astype(np.complex128), extended_code(ca_code(prn)), MOD_TABLE)
+def subtract_replicas(x: np.ndarray, base_sample: int, blocks: np.ndarray, amplitudes: np.ndarray, prn: int,
+                      both_images: bool = False) -> None:
+    """x -= sum over code periods of amplitude * code * carrier, the replicas described by tracking's blocks.
+
+    both_images: x holds real samples at an IF, where a signal is there twice (at +IF, which tracking measured, and
+    its mirror at -IF); subtract the real signal, 2 Re(replica), so the result is real and free of both."""
+    _subtract_kernel(x, base_sample, blocks, amplitudes.astype(np.complex128), extended_code(ca_code(prn)), MOD_TABLE,
+                     both_images)
 
 
 def replicas_reference(n_samples: int, base_sample: int, blocks, amplitudes, prn: int) -> np.ndarray:
@@ -102,6 +111,7 @@ class CancellerConfig:
     pull_in_ms: int = 300          # nothing is subtracted while the loops settle
     smoothing_ms: int = 16         # time constant of the amplitude/phase estimate
     max_stages: int = 3
+    real_samples: bool = False     # real samples at an IF: a signal and its mirror image are both subtracted
 
 
 def refine_peak(samples: np.ndarray, fs_hz: float, if_hz: float, peak: Peak) -> Peak:
@@ -175,7 +185,7 @@ class AdversaryTrack:
             legit = self._legit_amplitudes(prompts / blocks[:, 1], self._probes[1])
             without_legit = np.array(tracked, copy=True)
             moved = self._moved(blocks, 0.0)
-            _subtract_kernel(without_legit, base_sample, moved, legit, self._probe_code, MOD_TABLE)
+            _subtract_kernel(without_legit, base_sample, moved, legit, self._probe_code, MOD_TABLE, False)
             self.channel = before
             prompts, _ = self.channel.process(without_legit, base_sample)
             blocks = self.channel.last_blocks
@@ -255,7 +265,7 @@ class AdversaryTrack:
             self.settled = True
             self._backfill(work, base_sample, blocks[0], est[0])
             self.hold_from = None
-        subtract_replicas(work, base_sample, blocks, est, self.prn)
+        subtract_replicas(work, base_sample, blocks, est, self.prn, self.cfg.real_samples)
         self._measure(work, base_sample, blocks, est, legit)
 
     def _smooth(self, alphas: np.ndarray, ref: complex | None = None) -> np.ndarray:
@@ -294,7 +304,7 @@ class AdversaryTrack:
         bit = 1.0 if (settled_est * np.conj(saved)).real >= 0 else -1.0
         est = self._smooth(beta[ok], ref=settled_est * bit)
         self._ref = saved
-        subtract_replicas(work, base_sample, blocks[ok], est, self.prn)
+        subtract_replicas(work, base_sample, blocks[ok], est, self.prn, self.cfg.real_samples)
 
     def _measure(self, work, base_sample, blocks, est, legit=None) -> None:
         """What is left at the replica: the attenuation this track achieves (noise-corrected powers).

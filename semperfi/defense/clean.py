@@ -46,7 +46,7 @@ def clean_file(in_path, out_path, fmt, fs_hz, if_hz, cfg: dict, events_path=None
             metadata={"cleaned_from": source.name, "configuration": config.dumps_toml(cfg),
                       "skip_s": source.skip_samples / source.fs_in_hz},
             description="SemperFi plug-in filter output (spoofing signals cancelled)") as writer:
-        guard = SpoofGuard(cfg, source.fs_hz, source.if_hz, events)
+        guard = SpoofGuard(cfg, source.fs_hz, source.if_hz, events, real_samples=source.real_valued)
         chunks = source.chunks(CHUNK_S)
         if progress:
             from tqdm import tqdm

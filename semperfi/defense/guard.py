@@ -20,9 +20,10 @@ EXAMINE_MAX_PEAKS = 16  # a strong spoofer's Doppler and code sidelobes are loca
 
 class SpoofGuard:
     def __init__(self, cfg: dict, fs_hz: float, if_hz: float = 0.0, events=None, on_cancel=None, maneuver=None,
-                 nav_context=None):
+                 nav_context=None, real_samples: bool = False):
         """maneuver: a ManeuverIdentifier (an INS track with a maneuver in it), whose verdicts replace the policy's
-        guesses; nav_context() -> (ephemeris_of(prn, tow_s), a recent fix) for its lines of sight."""
+        guesses; nav_context() -> (ephemeris_of(prn, tow_s), a recent fix) for its lines of sight.
+        real_samples: the samples are real values at an IF (their output must stay real and free of both images)."""
         self.cfg, self.d = cfg, cfg["defense"]
         if self.d["mode"] not in ("off", "detect", "full"):
             raise ValueError(f"--defense wants off, detect or full; got '{self.d['mode']}'")
@@ -30,7 +31,8 @@ class SpoofGuard:
         self.fs_hz, self.if_hz, self.events, self.on_cancel = float(fs_hz), float(if_hz), events, on_cancel
         self.detector = SpoofingDetector(fs_hz, if_hz, DetectorConfig(separation_s=self.d["separation_ns"] * 1e-9,
                                                                       confirmations=self.d["confirmations"]))
-        self.canceller = Canceller(fs_hz, if_hz, CancellerConfig(max_stages=self.d["max_iterations"]))
+        self.canceller = Canceller(fs_hz, if_hz, CancellerConfig(max_stages=self.d["max_iterations"],
+                                                                 real_samples=real_samples))
         self.window = int(round(fs_hz * 1e-3)) * WINDOW_MS
         self._raw = np.empty(0, dtype=np.complex64)      # the newest raw samples, for examinations
         self._clean = np.empty(0, dtype=np.complex64)    # the newest cleaned samples, for verification

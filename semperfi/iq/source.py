@@ -146,6 +146,11 @@ class SampleSource:
         self._skipped = False
 
     @property
+    def real_valued(self) -> bool:
+        """Whether the samples delivered are real values at an IF (decimation mixes them to complex baseband)."""
+        return not self.fmt.is_complex and self.factor == 1
+
+    @property
     def name(self) -> str:
         return "standard input" if self.spec == "-" else self.spec
 
