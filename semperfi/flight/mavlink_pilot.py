@@ -27,6 +27,7 @@ SETPOINT_HZ = 10.0
 VELOCITY_ONLY = 0b0000_1101_1100_0111    # type_mask: use vx, vy, vz; ignore position, acceleration, yaw, yaw rate
 STOPPED_MPS = 0.2
 SETTLE_MAX_S = 6.0
+COMMAND_RETRY_S = 1.0                     # a command without an ACK after this is sent again
 G_MPS2 = 9.80665
 
 
@@ -76,10 +77,19 @@ class Pilot:
         return int(hb.custom_mode)
 
     def set_mode(self, custom_mode: int) -> None:
+        """DO_SET_MODE, resent (confirmation counted up) each COMMAND_RETRY_S without an ACK, as the MAVLink command
+        protocol has it: a datagram lost on UDP, or drowned in a busy link's telemetry, must not fail the flight."""
         deadline = time.monotonic() + self.timeout_s
-        self.conn.mav.command_long_send(*self.target, mav.MAV_CMD_DO_SET_MODE, 0,
-                                        mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, custom_mode, 0, 0, 0, 0, 0)
-        ack = self._recv("COMMAND_ACK", deadline)
+        confirmation, ack = 0, None
+        while ack is None:
+            self.conn.mav.command_long_send(*self.target, mav.MAV_CMD_DO_SET_MODE, min(confirmation, 255),
+                                            mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, custom_mode, 0, 0, 0, 0, 0)
+            try:
+                ack = self._recv("COMMAND_ACK", min(deadline, time.monotonic() + COMMAND_RETRY_S))
+            except PilotError:
+                if time.monotonic() >= deadline:
+                    raise
+            confirmation += 1
         if ack.command != mav.MAV_CMD_DO_SET_MODE or ack.result != mav.MAV_RESULT_ACCEPTED:
             raise PilotError(f"vehicle refused mode {custom_mode} (ack {ack.command}: {ack.result})")
         while self._recv("HEARTBEAT", deadline).custom_mode != custom_mode:
