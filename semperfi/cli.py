@@ -40,7 +40,8 @@ def main() -> None:
 @main.command()
 @click.argument("scenario", required=False, type=click.Path(dir_okay=False))
 @click.option("-o", "--out", "out_path", required=True, type=click.Path(dir_okay=False), help="IQ file to write")
-@click.option("--format", "fmt", type=click.Choice(["ibyte", "ishort", "gr_complex", "cfloat"]), help="sample format")
+@click.option("--format", "fmt", type=click.Choice(["ibyte", "ishort", "gr_complex", "cfloat", "byte", "short", "float"]),
+              help="sample format (byte, short, float: real samples at --if)")
 @click.option("--fs", "fs_hz", type=float, help="sample rate, Hz")
 @click.option("--if", "if_hz", type=float, help="intermediate frequency, Hz")
 @click.option("--duration", "duration_s", type=float, help="seconds to simulate")

@@ -329,14 +329,14 @@ def test_clean_on_real_if_samples_removes_the_spoofer_and_its_mirror(tmp_path):
     in each (-6 dB), which an unmodified receiver still tracks."""
     from semperfi.defense.clean import clean_file
     fs, if_hz = 4e6, 1e6
-    cfg = load_scenario(None, [f"signal.fs_hz={fs}", f"signal.if_hz={if_hz}", "time.duration_s=4.0",
-                               "constellation.max_satellites=4", "attacker.enabled=true", "attacker.time_offset_s=5e-6"])
-    simulate_to_file(cfg, tmp_path / "c.bin")   # complex at the IF; its I alone is a real front end's output
-    np.fromfile(tmp_path / "c.bin", dtype=np.int16)[0::2].tofile(tmp_path / "r.bin")
-    summary = clean_file(tmp_path / "r.bin", tmp_path / "out.bin", "short", fs, if_hz,
+    cfg = load_scenario(None, [f"signal.fs_hz={fs}", f"signal.if_hz={if_hz}", 'signal.format="short"',
+                               "time.duration_s=4.0", "constellation.max_satellites=4", "attacker.enabled=true",
+                               "attacker.time_offset_s=5e-6"])
+    simulate_to_file(cfg, tmp_path / "r.bin")
+    summary = clean_file(tmp_path / "r.bin", tmp_path / "out.bin", None, None, None,
                          _receiver_config(None, ['defense.mode="full"']))
     assert summary.cancelled, summary
-    original, cleaned = open_iq(tmp_path / "r.bin", "short", fs, if_hz), open_iq(tmp_path / "out.bin")
+    original, cleaned = open_iq(tmp_path / "r.bin"), open_iq(tmp_path / "out.bin")
     assert cleaned.fmt.name == "short" and cleaned.n_samples == original.n_samples
     at = int(3.5 * fs)
     before, after = original.read(at, int(0.03 * fs)), cleaned.read(at, int(0.03 * fs))

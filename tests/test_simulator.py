@@ -50,15 +50,19 @@ def test_every_satellite_acquires_at_the_truths_code_phase_and_doppler(clean):
         assert abs(peak.doppler_hz - truth["doppler_hz"]) < 100, f"PRN {prn}: Doppler {peak.doppler_hz:.0f} vs {truth['doppler_hz']:.0f}"
 
 
-@pytest.mark.parametrize("cn0", [35.0, 45.0])
-def test_measured_cn0_is_the_setting(tmp_path, cn0):
+@pytest.mark.parametrize("cn0, fmt, if_hz", [(35.0, "ishort", 0.0), (45.0, "ishort", 0.0), (45.0, "short", 6e5)])
+def test_measured_cn0_is_the_setting(tmp_path, cn0, fmt, if_hz):
+    """Complex baseband, and real samples at an IF (as a single-channel front end writes them; read back as the
+    signal at +IF and its mirror): the C/N0 a receiver measures is the one asked for."""
     out, rows = simulate(tmp_path, "cn0", f"constellation.cn0_dbhz={cn0}", "constellation.max_satellites=4",
-                         duration=1.0)
-    x = open_iq(out).read(0, int(FS))
+                         f"signal.if_hz={if_hz}", duration=1.0, fmt=fmt)
+    reader = open_iq(out)
+    assert reader.fmt.is_complex == (fmt == "ishort") and reader.if_hz == if_hz
+    x = reader.read(0, int(FS))
     for prn in sorted({int(r["prn"]) for r in rows}):
         t = first_truth(rows, prn)
-        prompt = correlate_ms(x, FS, prn, t["code_phase_chips"], t["doppler_hz"])
-        noise = correlate_ms(x, FS, prn, t["code_phase_chips"] + 400.0, t["doppler_hz"])
+        prompt = correlate_ms(x, FS, prn, t["code_phase_chips"], t["doppler_hz"], if_hz)
+        noise = correlate_ms(x, FS, prn, t["code_phase_chips"] + 400.0, t["doppler_hz"], if_hz)
         measured = cn0_known_noise_dbhz(prompt, noise)
         assert abs(measured - cn0) < 1.0, f"PRN {prn}: measured {measured:.2f} dB-Hz, set {cn0}"
 

@@ -68,7 +68,9 @@ DEFAULTS: dict = {
     },
 }
 
-FORMAT_NOISE_RMS = {"ibyte": 20.0, "ishort": 2000.0, "gr_complex": 1.0, "cfloat": 1.0}
+FORMAT_NOISE_RMS = {"ibyte": 20.0, "ishort": 2000.0, "gr_complex": 1.0, "cfloat": 1.0,
+                    "byte": 20.0, "short": 2000.0, "float": 1.0}   # the last three: real samples at signal.if_hz
+REAL_FORMATS = ("byte", "short", "float")
 
 
 def load_scenario(path=None, sets=()) -> dict:
@@ -87,7 +89,10 @@ def check(cfg: dict) -> None:
 
     need(0.5e6 <= s["fs_hz"] <= 100e6, f"signal.fs_hz = {s['fs_hz']:g} (0.5 to 100 MHz)")
     need(abs(s["if_hz"]) < s["fs_hz"] / 2, f"signal.if_hz = {s['if_hz']:g} must be below half the sample rate")
-    need(s["format"] in FORMAT_NOISE_RMS, f"signal.format = '{s['format']}' (ibyte, ishort, gr_complex)")
+    need(s["format"] in FORMAT_NOISE_RMS, f"signal.format = '{s['format']}' (ibyte, ishort, gr_complex; real at an "
+                                          "IF: byte, short, float)")
+    need(s["format"] not in REAL_FORMATS or s["if_hz"] != 0,
+         f"signal.format = '{s['format']}' is real-valued: set signal.if_hz (between 0 and half the sample rate)")
     need(s["noise_rms"] >= 0, "signal.noise_rms must not be negative")
     need(0 < cfg["time"]["duration_s"] <= 86400, f"time.duration_s = {cfg['time']['duration_s']:g} (0 to 1 day)")
     need(-5 <= c["elevation_mask_deg"] < 90, "constellation.elevation_mask_deg must lie in [-5, 90)")

@@ -23,7 +23,7 @@ from .motion import LiveMotion, StaticMotion, TrajectoryMotion
 from .navstream import NavStream
 from .propagation import arrival
 from .render import render
-from .scenario import FORMAT_NOISE_RMS
+from .scenario import FORMAT_NOISE_RMS, REAL_FORMATS
 
 CHUNK_S = 0.02   # pseudoranges are interpolated linearly within a chunk: < 1 mm at 10 m/s^2
 
@@ -194,6 +194,10 @@ class Simulator:
         """Yield complex64 chunks of CHUNK_S; call on_truth every truth_every_s with the state at that sample."""
         fs = self.fs_hz
         amp_per_sqrt_hz = math.sqrt(2.0 * self.noise_rms ** 2 / fs)
+        if self.cfg["signal"]["format"] in REAL_FORMATS:
+            # the real part is written: it keeps the noise density but half of each signal's power (the other half
+            # is its mirror image at -IF), so each amplitude is raised by sqrt(2) to keep the C/N0 asked for
+            amp_per_sqrt_hz *= math.sqrt(2.0)
         codes = np.stack([ca_code(s.prn) for s in self.signals])
         truth_every = max(1, int(round(truth_every_s / CHUNK_S)))
         code0, carr0, el0, truth0 = self._pseudoranges(0.0)
