@@ -38,6 +38,20 @@ class ClosedLoop:
     receiver_stdout: str = ""
     errors: list[str] = field(default_factory=list)
 
+    @classmethod
+    def load(cls, out_dir: str | Path) -> "ClosedLoop":
+        """What a finished run left in out_dir: the flight side's report, the receiver's events and fixes, the truth."""
+        out = Path(out_dir)
+        result = cls(out)
+        paths = {"flight": out / "flight.jsonl", "events": out / "receiver" / "events.jsonl"}
+        for name, path in paths.items():
+            if path.exists():
+                setattr(result, name, [json.loads(line) for line in open(path) if line.strip()])
+        for name, path in (("fixes", out / "receiver" / "fixes.csv"), ("truth", out / "truth.csv")):
+            if path.exists():
+                setattr(result, name, list(csv.DictReader(open(path))))
+        return result
+
     def first(self, kind: str, source: str = "events") -> dict | None:
         return next((e for e in getattr(self, source) if e.get("event") == kind), None)
 
@@ -113,14 +127,10 @@ def run_closed_loop(out_dir: str | Path, duration_s: float, sets: list[str] = ()
         except subprocess.TimeoutExpired:
             flight.kill()
             flight_out, flight_err = flight.communicate()
-    result.flight = [json.loads(line) for line in flight_out.splitlines() if line.startswith("{")]
-    (out / "flight.jsonl").write_text("".join(json.dumps(e) + "\n" for e in result.flight))
+    flight_report = [json.loads(line) for line in flight_out.splitlines() if line.startswith("{")]
+    (out / "flight.jsonl").write_text("".join(json.dumps(e) + "\n" for e in flight_report))
+    loaded = ClosedLoop.load(out)
+    loaded.receiver_stdout, loaded.errors = result.receiver_stdout, result.errors
     if flight.returncode and flight_err.strip():
-        result.errors.append(f"flight: {flight_err.strip().splitlines()[-1]}")
-    events = out / "receiver" / "events.jsonl"
-    result.events = [json.loads(line) for line in open(events)] if events.exists() else []
-    fixes = out / "receiver" / "fixes.csv"
-    result.fixes = list(csv.DictReader(open(fixes))) if fixes.exists() else []
-    truth = out / "truth.csv"
-    result.truth = list(csv.DictReader(open(truth))) if truth.exists() else []
-    return result
+        loaded.errors.append(f"flight: {flight_err.strip().splitlines()[-1]}")
+    return loaded
