@@ -54,3 +54,6 @@ def test_no_wrong_fix_is_called_good(loop):
     for state in ("nominal", "recovered"):
         _, err = loop.fix_errors_m(state)
         assert not np.any(err > 10.0), f"{np.sum(err > 10.0)} {state} fixes farther than 10 m"
+    # recovering (NMEA: caution) is a fix on cancelled or resolved PRNs only: never one still on the spoofer, 1 km off
+    t, err = loop.fix_errors_m("recovering")
+    assert not np.any(err > 100.0), f"recovering fixes on the spoofer at t = {t[err > 100.0]}"
