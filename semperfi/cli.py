@@ -30,6 +30,23 @@ def _bounded_heap() -> None:
         mallopt(m_mmap_threshold, 128 * 1024)
 
 
+FORMAT_HELP = ("ibyte | ishort | gr_complex | byte | short (real, with --if) | packed real2 iq2 real2sm iq2sm real4 "
+               "iq4 | a SigMF datatype (else from the SigMF sidecar)")
+
+
+def _window_options(command):
+    """--skip, --duration and --fs-out: the part of the input to process, and at what rate."""
+    for option in reversed((
+            click.option("--skip", "skip_s", type=float, default=0.0, show_default=True,
+                         help="seconds of input to skip"),
+            click.option("--duration", "duration_s", type=float, help="seconds of input to process (default: all)"),
+            click.option("--fs-out", "fs_out_hz", type=float,
+                         help="processing rate, Hz: decimate the input to it (an integer divisor of --fs; L1 brought "
+                              "to 0 Hz)"))):
+        command = option(command)
+    return command
+
+
 @click.group()
 @click.version_option(__version__)
 def main() -> None:
@@ -88,8 +105,7 @@ def _parse_prns(text: str) -> list[int]:
 @main.command()
 @click.argument("file", type=click.Path(dir_okay=False))
 @click.option("--fs", "fs_hz", type=float, help="sample rate, Hz (else from the SigMF sidecar)")
-@click.option("--format", "fmt", help="ibyte | ishort | gr_complex | byte | short (real, with --if) | packed real2 iq2 real2sm iq2sm real4 iq4 | a SigMF "
-              "datatype (else from the SigMF sidecar)")
+@click.option("--format", "fmt", help=FORMAT_HELP)
 @click.option("--iq-swap", is_flag=True, help="the front end stores Q before I (spectral inversion)")
 @click.option("--if", "if_hz", type=float, help="intermediate frequency, Hz")
 @click.option("--prn", "prn_text", default="1-32", show_default=True, help="PRNs to search")
@@ -139,8 +155,7 @@ def acquire(file, fs_hz, fmt, iq_swap, if_hz, prn_text, start_s, coherent_ms, no
 @main.command()
 @click.argument("file", type=click.Path(dir_okay=False))
 @click.option("--fs", "fs_hz", type=float, help="sample rate, Hz (else from the SigMF sidecar)")
-@click.option("--format", "fmt", help="ibyte | ishort | gr_complex | byte | short (real, with --if) | packed real2 iq2 real2sm iq2sm real4 iq4 | a SigMF "
-              "datatype (else from the SigMF sidecar)")
+@click.option("--format", "fmt", help=FORMAT_HELP)
 @click.option("--iq-swap", is_flag=True, help="the front end stores Q before I (spectral inversion)")
 @click.option("--if", "if_hz", type=float, help="intermediate frequency, Hz")
 @click.option("--nav", "nav_path", type=click.Path(dir_okay=False), help="RINEX navigation file (assisted mode)")
@@ -149,10 +164,7 @@ def acquire(file, fs_hz, fmt, iq_swap, if_hz, prn_text, start_s, coherent_ms, no
 @click.option("--defense", type=click.Choice(["off", "detect", "full"]), help="SemperFi's defence (default full; off = the conventional receiver)")
 @click.option("--adversarial", help="which peak is the attacker's: auto | stronger | later | prn:LIST")
 @click.option("--set", "sets", multiple=True, metavar="SECTION.KEY=VALUE", help="override a configuration key")
-@click.option("--skip", "skip_s", type=float, default=0.0, show_default=True, help="seconds of input to skip")
-@click.option("--duration", "duration_s", type=float, help="seconds of input to process (default: all)")
-@click.option("--fs-out", "fs_out_hz", type=float,
-              help="processing rate, Hz: decimate the input to it (an integer divisor of --fs; L1 brought to 0 Hz)")
+@_window_options
 @click.option("--imu", "imu_path", type=click.Path(dir_okay=False),
               help="INS-only track t_s,north_m,east_m,down_m (t_s from FILE's first sample) with a maneuver in it: "
                    "the Adversarial Peak Identifier decides which peaks are the attacker's")
@@ -194,17 +206,13 @@ def run(file, fs_hz, fmt, iq_swap, if_hz, nav_path, out_dir, config_path, defens
 @click.argument("file", type=click.Path(dir_okay=False))
 @click.option("-o", "--out", "out_path", required=True, type=click.Path(dir_okay=False), help="cleaned IQ file")
 @click.option("--fs", "fs_hz", type=float, help="sample rate, Hz (else from the SigMF sidecar)")
-@click.option("--format", "fmt", help="ibyte | ishort | gr_complex | byte | short (real, with --if) | packed real2 iq2 real2sm iq2sm real4 iq4 | a SigMF "
-              "datatype (else from the SigMF sidecar)")
+@click.option("--format", "fmt", help=FORMAT_HELP)
 @click.option("--iq-swap", is_flag=True, help="the front end stores Q before I (spectral inversion)")
 @click.option("--if", "if_hz", type=float, help="intermediate frequency, Hz")
 @click.option("--adversarial", help="which peak is the attacker's: auto | stronger | later | prn:LIST")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), help="TOML configuration")
 @click.option("--set", "sets", multiple=True, metavar="SECTION.KEY=VALUE", help="override a configuration key")
-@click.option("--skip", "skip_s", type=float, default=0.0, show_default=True, help="seconds of input to skip")
-@click.option("--duration", "duration_s", type=float, help="seconds of input to process (default: all)")
-@click.option("--fs-out", "fs_out_hz", type=float,
-              help="processing rate, Hz: decimate the input to it (an integer divisor of --fs; L1 brought to 0 Hz)")
+@_window_options
 def clean(file, out_path, fs_hz, fmt, iq_swap, if_hz, adversarial, config_path, sets, skip_s, duration_s,
           fs_out_hz) -> None:
     """Plug-in filter: write FILE (or - for standard input, rtl_tcp://HOST:PORT) with the spoofer's signals cancelled

@@ -415,7 +415,7 @@ def test_packed_values_decode_as_their_front_ends_define_them(name):
 @pytest.mark.parametrize("name", ["real2", "iq2sm", "iq4"])
 def test_packed_files_read_at_any_sample_in_chunks_and_from_a_pipe(tmp_path, name):
     import io
-    from semperfi.iq.stream import read_stream
+    from semperfi.iq.source import open_source
     fmt = format_by_name(name)
     raw = np.random.default_rng(7).integers(0, 256, 1001, dtype=np.uint8)
     path = tmp_path / "p.bin"
@@ -425,7 +425,8 @@ def test_packed_files_read_at_any_sample_in_chunks_and_from_a_pipe(tmp_path, nam
     assert (reader.n_samples, reader.truncated_bytes) == (1001 * fmt.samples_per_block, 0)
     assert np.array_equal(reader.read(5, 17), whole[5:22]) and np.array_equal(reader.read(3, 1), whole[3:4])
     assert np.array_equal(np.concatenate(list(reader)), whole)
-    assert np.array_equal(read_stream(io.BytesIO(raw.tobytes()), fmt, 50, skip_samples=7), whole[7:57])
+    pipe = open_source("-", fmt, 4e6, 0.0 if fmt.is_complex else 1e6, skip_s=7 / 4e6, stdin=io.BytesIO(raw.tobytes()))
+    assert np.array_equal(pipe.take(50), whole[7:57])
     with pytest.raises(ValueError, match="packed"):
         encode_samples(whole, fmt)
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from semperfi.iq import IqWriter
-from semperfi.iq.stream import read_stream
+from semperfi.iq.source import open_source
 
 FS = 2.048e6
 
@@ -61,6 +61,7 @@ def test_stdin_needs_format_and_rate():
     assert result.returncode != 0 and "--format and --fs" in result.stderr
 
 
-def test_read_stream_refuses_hostile_sizes():
-    with pytest.raises(ValueError, match="whole number"):
-        read_stream(io.BytesIO(b""), "ibyte", 10**12)
+def test_a_stream_read_refuses_hostile_sizes():
+    source = open_source("-", "ibyte", FS, stdin=io.BytesIO(b""))
+    with pytest.raises(ValueError, match="must be below"):
+        source.take(10**12)

@@ -109,9 +109,10 @@ def lines_of_sight(prns, ephemeris_of, fix, t_s: np.ndarray) -> dict[int, LineOf
 class ManeuverIdentifier:
     """Follows candidate peaks through the maneuver window of an INS track, and identifies them at its end."""
 
-    def __init__(self, track: ImuTrack, fs_hz: float, if_hz: float = 0.0):
+    def __init__(self, track: ImuTrack | None, fs_hz: float, if_hz: float = 0.0):
+        """track None: it comes later (LinkedManeuver, from the flight side)."""
         self.track, self.fs_hz, self.if_hz = track, fs_hz, if_hz
-        self.window_s = find_maneuver(track)
+        self.window_s = find_maneuver(track) if track is not None else None
         self.followers: dict[tuple[int, int], PeakFollower] = {}
         self._buf = np.empty(0, dtype=np.complex64)
         self._base = 0
@@ -187,13 +188,9 @@ class LinkedManeuver(ManeuverIdentifier):
     TRACK_S = 60.0
 
     def __init__(self, channel, fs_hz: float, if_hz: float = 0.0, ready=lambda: True):
-        self.channel, self.fs_hz, self.if_hz, self.ready = channel, fs_hz, if_hz, ready
+        super().__init__(None, fs_hz, if_hz)
+        self.channel, self.ready = channel, ready
         self.wanted: tuple[float, int] | None = None
-        self.track, self.window_s = None, None
-        self.followers: dict[tuple[int, int], PeakFollower] = {}
-        self._buf = np.empty(0, dtype=np.complex64)
-        self._base = 0
-        self.started = self.ended = False
         self.requested_s: float | None = None
         self.accepted_s: float | None = None
         self.maneuver_id: str | None = None

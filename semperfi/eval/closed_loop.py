@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ..gps.geometry import enu_rotation, geodetic_to_ecef
+from ..sim.scenario import load_scenario
 
 CLOSED_LOOP_SETTINGS = ["attacker.enabled=true", "attacker.power_advantage_db=6.0", "attacker.offset_east_m=1000.0",
                         "signal.fs_hz=2e6", 'signal.format="ishort"', "constellation.max_satellites=8"]
@@ -99,7 +100,7 @@ def run_closed_loop(out_dir: str | Path, duration_s: float, sets: list[str] = ()
     flight = subprocess.Popen(me + ["companion", "--port", str(link_port), "--link-key", str(key_path),
                                     "--vehicle", f"udpout:127.0.0.1:{mavlink_port}"],
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    result = ClosedLoop(out)
+    errors, receiver_stdout = [], ""
     try:
         if flight.stdout.readline().find('"listening"') < 0:
             raise RuntimeError(f"the flight side did not start: {flight.stderr.read()[-500:]}")
@@ -108,7 +109,9 @@ def run_closed_loop(out_dir: str | Path, duration_s: float, sets: list[str] = ()
                                        *(["--tee", str(out / "world.bin")] if tee else []),
                                        *sum((["--set", s] for s in scenario), [])],
                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-        receiver_args = ["run", "-", "--fs", "2e6", "--format", "ishort", "--out", str(out / "receiver"),
+        signal = load_scenario(None, scenario)["signal"]   # what the world writes, whatever `sets` changed
+        receiver_args = ["run", "-", "--fs", repr(signal["fs_hz"]), "--format", signal["format"],
+                         "--if", repr(signal["if_hz"]), "--out", str(out / "receiver"),
                          "--link", f"127.0.0.1:{link_port}", "--link-key", str(key_path)]
         if nav_path:
             receiver_args += ["--nav", str(nav_path)]
@@ -116,11 +119,11 @@ def run_closed_loop(out_dir: str | Path, duration_s: float, sets: list[str] = ()
                                   stderr=None if show else subprocess.PIPE, text=True, timeout=timeout_s)
         world.stdout.close()
         world_err = world.communicate(timeout=60)[1].decode(errors="replace")
-        result.receiver_stdout = receiver.stdout
+        receiver_stdout = receiver.stdout
         for name, code, err in (("receiver", receiver.returncode, receiver.stderr), ("world", world.returncode,
                                                                                     world_err)):
             if code not in (0, None) and err and err.strip():
-                result.errors.append(f"{name}: {err.strip().splitlines()[-1]}")
+                errors.append(f"{name}: {err.strip().splitlines()[-1]}")
     finally:
         try:
             flight_out, flight_err = flight.communicate(timeout=60)
@@ -129,8 +132,8 @@ def run_closed_loop(out_dir: str | Path, duration_s: float, sets: list[str] = ()
             flight_out, flight_err = flight.communicate()
     flight_report = [json.loads(line) for line in flight_out.splitlines() if line.startswith("{")]
     (out / "flight.jsonl").write_text("".join(json.dumps(e) + "\n" for e in flight_report))
-    loaded = ClosedLoop.load(out)
-    loaded.receiver_stdout, loaded.errors = result.receiver_stdout, result.errors
     if flight.returncode and flight_err.strip():
-        loaded.errors.append(f"flight: {flight_err.strip().splitlines()[-1]}")
-    return loaded
+        errors.append(f"flight: {flight_err.strip().splitlines()[-1]}")
+    result = ClosedLoop.load(out)
+    result.receiver_stdout, result.errors = receiver_stdout, errors
+    return result

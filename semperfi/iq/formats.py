@@ -23,6 +23,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 
+MAX_READ_BYTES = 1 << 30   # one request never asks for more than this (a hostile --fs cannot exhaust memory)
+
+
 @dataclass(frozen=True)
 class SampleFormat:
     """How one sample is laid out on disk."""

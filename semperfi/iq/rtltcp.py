@@ -14,7 +14,7 @@ import struct
 import numpy as np
 
 from .formats import as_format, decode_items
-from .stream import MAX_READ_BYTES
+from .formats import MAX_READ_BYTES
 
 MAGIC = b"RTL0"
 HEADER = struct.Struct(">4sII")

@@ -23,7 +23,7 @@ from typing import BinaryIO, Iterator
 import numpy as np
 
 from .decimate import StreamDecimator, decimation_factor
-from .formats import SampleFormat, _finite_float, _positive_float, as_format, decode_items
+from .formats import MAX_READ_BYTES, SampleFormat, _finite_float, _positive_float, as_format, decode_items
 from .reader import open_iq
 
 LIVE_WINDOW_S = 5.0      # wall time over which a live stream's rate is judged
@@ -168,7 +168,7 @@ class SampleSource:
         else:
             left = self.skip_samples
             while left > 0:
-                got = len(self._input.take(min(left, 1 << 20)))
+                got = len(self._input.take(min(left, MAX_READ_SAMPLES)))
                 if got == 0:
                     raise ValueError(f"{self.name} ended while skipping {self.skip_samples} samples")
                 left -= got
@@ -208,6 +208,9 @@ class SampleSource:
 
     def take(self, n: int) -> np.ndarray:
         """The first n processing samples of the window (acquisition's one look)."""
+        limit = MAX_READ_BYTES * self.fmt.samples_per_block // (self.fmt.block_bytes * self.factor)
+        if n > limit:   # a hostile --fs must not make one look hold gigabytes
+            raise ValueError(f"one read must be below {limit} samples, got {n}")
         parts, got = [], 0
         for chunk in self.chunks(min(1.0, n / self.fs_hz + 1e-3)):
             parts.append(chunk)
