@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from semperfi.cli import _receiver_config
-from semperfi.defense.canceller import (Canceller, caf_amplitude, refine_peak, replicas_reference,
+from semperfi.defense.canceller import (Canceller, caf_amplitude, refine_peak, replicas_reference, residuals,
                                         subtract_replicas)
 from semperfi.defense.defended import DefendedReceiver
 from semperfi.defense.detector import SpoofingDetector, chips_apart
@@ -16,6 +16,7 @@ from semperfi.defense.twopath import delay_profile, delay_profile_reference, two
 from semperfi.gps.geometry import enu_rotation, geodetic_to_ecef
 from semperfi.iq import open_iq
 from semperfi.receiver.acquisition import DopplerGrid, acquire
+from semperfi.receiver.correlator import code_bank
 from semperfi.receiver.run import run_file
 from semperfi.sim.run import simulate_to_file
 from semperfi.sim.scenario import load_scenario
@@ -49,26 +50,41 @@ def test_fast_kernels_equal_their_references():
     fast = delay_profile(x, FS, 9, 300.37, 1234.0, 0.0, offsets, 20)
     slow = delay_profile_reference(x, FS, 9, 300.37, 1234.0, 0.0, offsets, 20)
     assert np.allclose(fast[0], slow[0], atol=1e-6) and np.allclose(fast[1], slow[1])
-    blocks = np.array([[100.0, 2000.0, 0.3, 0.5115, 0.25, 0.0007], [2100.0, 2000.0, 0.1, 0.5115, 0.68, 0.0007]])
+    # blocks' code steps off the bank's nominal one (a Doppler of ~3 ppm, a wrong crystal of 40 ppm)
+    blocks = np.array([[100.0, 2000.0, 0.3, 0.5115 * (1 + 3e-6), 0.25, 0.0007],
+                       [2100.0, 2000.0, 0.1, 0.5115 * (1 - 4e-5), 0.68, 0.0007]])
     amps = np.array([0.5 + 0.2j, -0.4 + 0.1j])
+    bank = code_bank(5, FS)
+    edge = near_chip_edge(5000, 0, blocks)   # where rounding the replica's phase to the bank may flip a chip
+    assert edge.mean() < 0.01
     y = np.zeros(5000, dtype=np.complex64)
-    subtract_replicas(y, 0, blocks, amps, 5)
+    subtract_replicas(y, 0, blocks, amps, bank)
     ref = replicas_reference(5000, 0, blocks, amps, 5)
-    assert np.max(np.abs(-y - ref)) < np.pi / 4096 * 0.6   # the carrier table's half-cell
+    assert np.max(np.abs(-y - ref)[~edge]) < 1e-5
     y = np.zeros(5000, dtype=np.complex64)     # real samples at an IF: the signal and its mirror, a real result
-    subtract_replicas(y, 0, blocks, amps, 5, both_images=True)
-    assert np.max(np.abs(-y - 2 * ref.real)) < np.pi / 4096 * 1.2 and not np.any(y.imag)
+    subtract_replicas(y, 0, blocks, amps, bank, both_images=True)
+    assert np.max(np.abs(-y - 2 * ref.real)[~edge]) < 2e-5 and not np.any(y.imag)
     # the residual measurement: each block's correlation with its unit replica, and its mean power
-    from semperfi.defense.canceller import MOD_TABLE, _residual_kernel
-    from semperfi.gps.codes import ca_code
-    from semperfi.receiver.correlator import extended_code
-    beta, power = np.empty(2, dtype=np.complex128), np.empty(2)
-    _residual_kernel(x[:5000], 0, blocks, extended_code(ca_code(5)), MOD_TABLE, beta, power)
+    beta, power = residuals(x[:5000], 0, blocks, bank)
     unit = [replicas_reference(5000, 0, blocks[i:i + 1], np.ones(1), 5) for i in range(2)]
     for i, (first, n) in enumerate(blocks[:, :2].astype(int)):
         seg = slice(first, first + n)
-        assert abs(beta[i] - np.vdot(unit[i][seg], x[seg]) / n) < 1e-3
+        flips = 2 * np.sum(np.abs(x[seg][edge[seg]])) / n
+        assert abs(beta[i] - np.vdot(unit[i][seg], x[seg]) / n) < 1e-5 + flips
         assert power[i] == pytest.approx(np.mean(np.abs(x[seg]) ** 2), rel=1e-5)
+
+
+def near_chip_edge(n_samples, base_sample, blocks, offset_chips=0.0):
+    """Samples whose exact code phase lies within a bank quantum of a chip boundary."""
+    from semperfi.receiver.correlator import QUANTUM_CHIPS
+    mask = np.zeros(n_samples, dtype=bool)
+    for first, n, cp, step, _, _ in blocks:
+        k = np.arange(int(n))
+        pos = cp + offset_chips + k * step
+        idx = int(first) - base_sample + k
+        ok = (idx >= 0) & (idx < n_samples)
+        mask[idx[ok]] |= (np.abs(pos - np.round(pos)) < QUANTUM_CHIPS)[ok]
+    return mask
 
 
 @pytest.mark.parametrize("sets", [[], ["constellation.cn0_dbhz=55.0"]] +
@@ -99,7 +115,9 @@ def test_the_legitimate_probe_correlates_with_the_code_moved_by_its_offset():
                 replica = replicas_reference(6000, 0, moved[None], np.ones(1), 5)
                 first, n = int(block[0]), int(block[1])
                 want = np.vdot(replica[first:first + n], x[first:first + n]) / n
-                assert abs(probes[row, i] - want) < 2e-3, (offset, shift, i, probes[row, i], want)
+                edge = near_chip_edge(6000, 0, moved[None])[first:first + n]
+                flips = 2 * np.sum(np.abs(x[first:first + n][edge])) / n
+                assert abs(probes[row, i] - want) < 1e-5 + flips, (offset, shift, i, probes[row, i], want)
 
 
 def test_sensitive_examination_finds_a_second_signal_closer_than_the_alarm_separation(tmp_path):

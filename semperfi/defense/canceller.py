@@ -7,8 +7,6 @@ amplitude is subtracted. Stages can be chained: stage k tracks what stage k - 1 
 """
 
 import copy
-import os
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -17,72 +15,97 @@ from numba import njit
 from ..gps.codes import ca_code
 from ..gps.constants import CA_CODE_LENGTH_CHIPS
 from ..receiver.acquisition import DopplerGrid, Peak, acquire
-from ..receiver.correlator import WIPE_TABLE, extended_code
+from ..receiver.correlator import CodeBank, fill_lanes, lane_buffer, replica, sub_block_samples
 from ..receiver.tracking import NEXT_SAMPLE, Channel, LoopConfig, initial_state
+from ..receiver.workers import run_each
 
-MOD_TABLE = np.conj(WIPE_TABLE)   # exp(+j 2 pi phase): the carrier as transmitted
 MEASURE_EVERY = 8                 # code periods per attenuation measurement
 
 
-@njit(cache=True, nogil=True)
-def _subtract_kernel(x, base_sample, blocks, amplitudes, code_ext, table, both_images):
-    n_table = table.size
+@njit(cache=True, nogil=True, fastmath=True)
+def _subtract_kernel(x, base_sample, blocks, amplitudes, rows, first, bank_step, offset_chips, lanes, both_images):
+    """x -= amplitude * code * carrier per block (the part of each block inside x), the code moved by offset_chips."""
     for m in range(blocks.shape[0]):
         start = np.int64(blocks[m, 0]) - base_sample
-        n, step = np.int64(blocks[m, 1]), blocks[m, 3]
-        pos = blocks[m, 2] + 1.0                  # +1: positive, so int() is floor, and indexes code_ext directly
-        ph = blocks[m, 4] - np.floor(blocks[m, 4])
-        pstep = blocks[m, 5] - np.floor(blocks[m, 5])
-        a = np.complex64(amplitudes[m])
+        n, cp, step = np.int64(blocks[m, 1]), blocks[m, 2] + offset_chips, blocks[m, 3]
+        ph, pstep = blocks[m, 4], blocks[m, 5]
+        a = amplitudes[m]
         lo, hi = max(0, -start), min(n, x.size - start)
-        pos += lo * step
-        ph = ph + lo * pstep
-        ph -= np.floor(ph)
-        for k in range(lo, hi):
-            v = a * code_ext[np.int64(pos)] * table[np.int64(ph * n_table)]
-            if both_images:
-                x[start + k] -= 2.0 * v.real
-            else:
-                x[start + k] -= v
-            pos += step
-            ph += pstep
-            if ph >= 1.0:
-                ph -= 1.0
+        s_max = sub_block_samples(step, bank_step)
+        fill_lanes(lanes, pstep, s_max, 1.0)
+        k0 = lo
+        while k0 < hi:
+            s = min(s_max, hi - k0)
+            rot = a * np.exp(2j * np.pi * (ph + k0 * pstep))
+            c0r, c0i = np.float32(rot.real), np.float32(rot.imag)
+            code = replica(rows, first, bank_step, cp, step, k0, s)
+            xs = x[start + k0:start + k0 + s]
+            for j in range(s):
+                ln = lanes[j]
+                c = np.float32(code[j])
+                vr = c * (c0r * ln.real - c0i * ln.imag)
+                if both_images:
+                    xs[j] -= 2.0 * vr
+                else:
+                    xs[j] -= complex(vr, c * (c0r * ln.imag + c0i * ln.real))
+            k0 += s
 
 
-@njit(cache=True, nogil=True)
-def _residual_kernel(x, base_sample, blocks, code_ext, table, out_beta, out_power):
-    """Per block: the residual's correlation with the (unit) replica, and the residual's mean power."""
-    n_table = table.size
+@njit(cache=True, nogil=True, fastmath=True)
+def _residual_kernel(x, base_sample, blocks, rows, first, bank_step, offset_chips, lanes, out_beta, out_power):
+    """Per block: the residual's correlation with the (unit) replica, the code moved by offset_chips, and the
+    residual's mean power; nan for a block not wholly inside x."""
     for m in range(blocks.shape[0]):
         start = np.int64(blocks[m, 0]) - base_sample
-        n, cp, step = np.int64(blocks[m, 1]), blocks[m, 2], blocks[m, 3]
-        ph = blocks[m, 4] - np.floor(blocks[m, 4])
-        pstep = blocks[m, 5] - np.floor(blocks[m, 5])
-        acc = 0j
-        power = 0.0
+        n, cp, step = np.int64(blocks[m, 1]), blocks[m, 2] + offset_chips, blocks[m, 3]
         if start < 0 or start + n > x.size:
             out_beta[m], out_power[m] = np.nan, np.nan
             continue
-        for k in range(n):
-            v = x[start + k]
-            r = code_ext[np.int64(np.floor(cp + k * step)) + 1] * table[np.int64(ph * n_table)]
-            acc += v * np.conj(r)
-            power += v.real * v.real + v.imag * v.imag
-            ph += pstep
-            if ph >= 1.0:
-                ph -= 1.0
+        s_max = sub_block_samples(step, bank_step)
+        fill_lanes(lanes, blocks[m, 5], s_max, -1.0)
+        acc = 0j
+        power = 0.0
+        k0 = 0
+        while k0 < n:
+            s = min(s_max, n - k0)
+            rot = np.exp(-2j * np.pi * (blocks[m, 4] + k0 * blocks[m, 5]))
+            c0r, c0i = np.float32(rot.real), np.float32(rot.imag)
+            code = replica(rows, first, bank_step, cp, step, k0, s)
+            xs = x[start + k0:start + k0 + s]
+            br = bi = pw = np.float32(0.0)
+            for j in range(s):
+                v = xs[j]
+                ln = lanes[j]
+                c = np.float32(code[j])
+                wr = c * (c0r * ln.real - c0i * ln.imag)
+                wi = c * (c0r * ln.imag + c0i * ln.real)
+                br += v.real * wr - v.imag * wi
+                bi += v.real * wi + v.imag * wr
+                pw += v.real * v.real + v.imag * v.imag
+            acc += complex(br, bi)
+            power += pw
+            k0 += s
         out_beta[m], out_power[m] = acc / n, power / n
 
 
-def subtract_replicas(x: np.ndarray, base_sample: int, blocks: np.ndarray, amplitudes: np.ndarray, prn: int,
-                      both_images: bool = False) -> None:
-    """x -= sum over code periods of amplitude * code * carrier, the replicas described by tracking's blocks.
+def subtract_replicas(x: np.ndarray, base_sample: int, blocks: np.ndarray, amplitudes: np.ndarray, bank: CodeBank,
+                      both_images: bool = False, offset_chips: float = 0.0) -> None:
+    """x -= sum over code periods of amplitude * code * carrier, the replicas described by tracking's blocks (the
+    code moved by offset_chips).
 
     both_images: x holds real samples at an IF, where a signal is there twice (at +IF, which tracking measured, and
     its mirror at -IF); subtract the real signal, 2 Re(replica), so the result is real and free of both."""
-    _subtract_kernel(x, base_sample, blocks, amplitudes.astype(np.complex128), extended_code(ca_code(prn)), MOD_TABLE,
-                     both_images)
+    _subtract_kernel(x, base_sample, blocks, amplitudes.astype(np.complex128), bank.rows, bank.first, bank.step_chips,
+                     offset_chips, lane_buffer(), both_images)
+
+
+def residuals(x: np.ndarray, base_sample: int, blocks: np.ndarray, bank: CodeBank,
+              offset_chips: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Per block: x's correlation with the unit replica (code moved by offset_chips) / samples, and x's mean power."""
+    beta, power = np.empty(len(blocks), dtype=np.complex128), np.empty(len(blocks))
+    _residual_kernel(x, base_sample, blocks, bank.rows, bank.first, bank.step_chips, offset_chips, lane_buffer(),
+                     beta, power)
+    return beta, power
 
 
 def replicas_reference(n_samples: int, base_sample: int, blocks, amplitudes, prn: int) -> np.ndarray:
@@ -132,7 +155,6 @@ def code_correlation(offset_chips: float) -> float:
 JOINT_WITHIN_CHIPS = 1.2
 PROBE_HALF_SPACING_CHIPS = 0.25   # where the legitimate signal's offset is measured, either side of it
 OFFSET_GAIN = 0.3                 # fraction of each measured offset error applied per tracked buffer
-PROBE_PAD_CHIPS = 3               # > JOINT_WITHIN_CHIPS + PROBE_HALF_SPACING_CHIPS + a block's starting phase
 
 
 class AdversaryTrack:
@@ -149,8 +171,6 @@ class AdversaryTrack:
                  cfg: CancellerConfig, stage: int, legit_offset_chips: float | None = None):
         self.prn, self.stage, self.cfg = prn, stage, cfg
         self.legit_offset_chips = legit_offset_chips
-        code = ca_code(prn)   # wrapped by more than the largest probe offset on each side
-        self._probe_code = np.concatenate([code[-PROBE_PAD_CHIPS:], code, code[:PROBE_PAD_CHIPS]]).astype(np.float32)
         loop = LoopConfig(pll_bw_hz=cfg.pll_bw_hz, dll_bw_hz=cfg.dll_bw_hz, pull_in_ms=cfg.pull_in_ms,
                           min_cn0_dbhz=20.0, dll_narrow_bw_hz=cfg.narrow_dll_bw_hz,
                           narrow_after_ms=cfg.narrow_after_ms, spacing_chips=cfg.spacing_chips)
@@ -177,15 +197,15 @@ class AdversaryTrack:
         before = copy.deepcopy(self.channel) if self._joint() else None
         prompts, _ = self.channel.process(tracked, base_sample)
         blocks = self.channel.last_blocks
-        self._probes = None
+        self._probes = self._legit_est = None   # this buffer's, or none (a stale one would not match its blocks)
         if before is not None and prompts.size:
             # A legitimate signal within a chip pulls the spoofer's early-late balance: estimate it from this pass,
             # take it out of the samples, and track the same samples again from the same loop state.
             self._probes = self._probe(tracked, base_sample, blocks)
             legit = self._legit_amplitudes(prompts / blocks[:, 1], self._probes[1])
             without_legit = np.array(tracked, copy=True)
-            moved = self._moved(blocks, 0.0)
-            _subtract_kernel(without_legit, base_sample, moved, legit, self._probe_code, MOD_TABLE, False)
+            subtract_replicas(without_legit, base_sample, blocks, legit, self.channel.bank,
+                              offset_chips=self.legit_offset_chips)
             self.channel = before
             prompts, _ = self.channel.process(without_legit, base_sample)
             blocks = self.channel.last_blocks
@@ -193,13 +213,6 @@ class AdversaryTrack:
             self._probes = self._probe(tracked, base_sample, blocks)
             self._legit_est = self._legit_amplitudes(prompts / blocks[:, 1], self._probes[1], update=False)
         self._tracked = (first_ms, prompts, blocks)
-
-    def _moved(self, blocks: np.ndarray, shift_chips: float) -> np.ndarray:
-        """The blocks' replicas moved to the legitimate signal's offset (+ shift), for the padded probe code (the
-        kernels read code[floor(phase) + 1])."""
-        moved = blocks.copy()
-        moved[:, 2] += self.legit_offset_chips + shift_chips + PROBE_PAD_CHIPS - 1
-        return moved
 
     def _legit_amplitudes(self, alphas: np.ndarray, beta: np.ndarray, update: bool = True) -> np.ndarray:
         """The legitimate signal's amplitude per code period (in the spoofer's carrier frame) from the joint solve,
@@ -222,11 +235,8 @@ class AdversaryTrack:
     def _probe(self, x: np.ndarray, base_sample: int, blocks: np.ndarray) -> np.ndarray:
         """Per code period, the correlations with the spoofer's replica moved to the legitimate signal's offset and
         to either side of it (rows: offset - h, offset, offset + h)."""
-        out = np.empty((3, len(blocks)), dtype=np.complex128)
-        power = np.empty(len(blocks))
-        for row, shift in enumerate((-PROBE_HALF_SPACING_CHIPS, 0.0, PROBE_HALF_SPACING_CHIPS)):
-            _residual_kernel(x, base_sample, self._moved(blocks, shift), self._probe_code, MOD_TABLE, out[row], power)
-        return out
+        return np.array([residuals(x, base_sample, blocks, self.channel.bank, self.legit_offset_chips + shift)[0]
+                         for shift in (-PROBE_HALF_SPACING_CHIPS, 0.0, PROBE_HALF_SPACING_CHIPS)])
 
     def _follow_legit(self, probes: np.ndarray, est: np.ndarray) -> None:
         """Move the legitimate signal's offset toward the early-late balance of the probes (the spoofer's own share
@@ -265,7 +275,7 @@ class AdversaryTrack:
             self.settled = True
             self._backfill(work, base_sample, blocks[0], est[0])
             self.hold_from = None
-        subtract_replicas(work, base_sample, blocks, est, self.prn, self.cfg.real_samples)
+        subtract_replicas(work, base_sample, blocks, est, self.channel.bank, self.cfg.real_samples)
         self._measure(work, base_sample, blocks, est, legit)
 
     def _smooth(self, alphas: np.ndarray, ref: complex | None = None) -> np.ndarray:
@@ -297,14 +307,13 @@ class AdversaryTrack:
             n = np.ceil(e + period) - s0
             blocks.append((s0, n, (s0 - e) * step, step, ph + (s0 - first) * pstep, pstep))
         blocks = np.array(blocks)
-        beta, power = np.empty(len(blocks), dtype=np.complex128), np.empty(len(blocks))
-        _residual_kernel(work, base_sample, blocks, self.channel.code_ext, MOD_TABLE, beta, power)
+        beta, power = residuals(work, base_sample, blocks, self.channel.bank)
         ok = np.isfinite(power)
         saved = self._ref
         bit = 1.0 if (settled_est * np.conj(saved)).real >= 0 else -1.0
         est = self._smooth(beta[ok], ref=settled_est * bit)
         self._ref = saved
-        subtract_replicas(work, base_sample, blocks[ok], est, self.prn, self.cfg.real_samples)
+        subtract_replicas(work, base_sample, blocks[ok], est, self.channel.bank, self.cfg.real_samples)
 
     def _measure(self, work, base_sample, blocks, est, legit=None) -> None:
         """What is left at the replica: the attenuation this track achieves (noise-corrected powers).
@@ -317,8 +326,7 @@ class AdversaryTrack:
         pick = (np.arange(len(blocks)) + self._measure_phase) % MEASURE_EVERY == 0
         self._measure_phase = (self._measure_phase + len(blocks)) % MEASURE_EVERY
         blocks, est = blocks[pick], est[pick]
-        beta, power = np.empty(len(blocks), dtype=np.complex128), np.empty(len(blocks))
-        _residual_kernel(work, base_sample, blocks, self.channel.code_ext, MOD_TABLE, beta, power)
+        beta, power = residuals(work, base_sample, blocks, self.channel.bank)
         if legit is not None:   # a legitimate signal within a chip is seen at the replica too: not a residual
             beta = beta - code_correlation(self.legit_offset_chips) * legit[pick]
         ok = np.isfinite(power)
@@ -334,18 +342,6 @@ class AdversaryTrack:
                                         bool(bound)))
             self._acc_signal = self._acc_residual = self._acc_noise = 0.0
             self._acc_n = 0
-
-
-_POOL: ThreadPoolExecutor | None = None
-
-
-def _pool() -> ThreadPoolExecutor:
-    """Threads for the tracks' numba kernels (which release the GIL); each track's work is independent, so the
-    result does not depend on how they are scheduled."""
-    global _POOL
-    if _POOL is None:
-        _POOL = ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1)), thread_name_prefix="semperfi-sic")
-    return _POOL
 
 
 @dataclass
@@ -376,7 +372,7 @@ class CancellerStage:
         self._raw = np.concatenate([self._raw, chunk])
         self._work = np.concatenate([self._work, chunk])
         tracks = list(self.tracks.items())
-        list(_pool().map(lambda item: item[1].track(self._raw, self.base), tracks))
+        run_each(lambda item: item[1].track(self._raw, self.base), tracks)
         for prn, tr in tracks:          # subtracting writes to one buffer: in order
             tr.apply(self._work, self.base)
             if not tr.channel.locked:   # the spoofer went away (or was never there)

@@ -6,11 +6,10 @@ from pathlib import Path
 
 from .. import config
 from ..iq import GR_COMPLEX, IBYTE, ISHORT, IqWriter
-from ..iq.source import SourceError, open_source
+from ..iq.source import SourceError, chunk_seconds, open_source
 from ..receiver.outputs import EventLog
 from .guard import SpoofGuard
 
-CHUNK_S = 0.1
 
 
 @dataclass(frozen=True)
@@ -47,11 +46,12 @@ def clean_file(in_path, out_path, fmt, fs_hz, if_hz, cfg: dict, events_path=None
                       "skip_s": source.skip_samples / source.fs_in_hz},
             description="SemperFi plug-in filter output (spoofing signals cancelled)") as writer:
         guard = SpoofGuard(cfg, source.fs_hz, source.if_hz, events, real_samples=source.real_valued)
-        chunks = source.chunks(CHUNK_S)
+        chunk_s = chunk_seconds(source.fs_hz)
+        chunks = source.chunks(chunk_s)
         if progress:
             from tqdm import tqdm
             total = source.expected_samples
-            chunks = tqdm(chunks, total=None if total is None else -(-total // int(source.fs_hz * CHUNK_S)),
+            chunks = tqdm(chunks, total=None if total is None else -(-total // int(source.fs_hz * chunk_s)),
                           unit="chunk", desc="cleaning")
         try:
             for chunk in chunks:

@@ -17,10 +17,10 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
-from scipy import stats
 
 from ..gps.codes import ca_code
 from ..gps.constants import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, L1_HZ
+from ..receiver.chisquare import chi2_isf
 
 
 @dataclass(frozen=True)
@@ -121,7 +121,7 @@ def delay_profile_reference(samples, fs_hz, prn, code_phase_chips, doppler_hz, i
 @functools.lru_cache(maxsize=32)
 def _threshold(pfa: float, n_offsets: int, n_blocks: int) -> float:
     n_pairs = n_offsets * (n_offsets - 1) / 2   # the maximum over pairs: Bonferroni
-    return float(stats.chi2.isf(pfa / n_pairs, 2 * n_blocks) / 2)
+    return float(chi2_isf(pfa / n_pairs, 2 * n_blocks) / 2)
 
 
 def two_path_test(samples, fs_hz, prn, code_phase_chips, doppler_hz, if_hz=0.0, n_blocks=20, span_chips=2.0,

@@ -13,7 +13,6 @@ from typing import Iterable, Iterator
 
 import numba
 import numpy as np
-from scipy import signal
 
 TAPS_PER_PHASE = 16    # taps = 2 * TAPS_PER_PHASE * M + 1: ~60 dB stop band from 0.5 fs_out, even delay
 PASSBAND = 0.8         # of the output Nyquist band kept flat; GPS L1 C/A's main lobe needs +-1.023 MHz
@@ -41,6 +40,7 @@ class StreamDecimator:
             raise ValueError(f"decimation factor must be a positive integer, got {factor!r}")
         self.factor = m = int(factor)
         n_taps = 2 * TAPS_PER_PHASE * m + 1
+        from scipy import signal   # here: importing scipy.signal costs most of a second, and few runs decimate
         self.taps = (signal.firwin(n_taps, PASSBAND / m, window=("kaiser", 6.0)) if m > 1
                      else np.ones(1)).astype(np.float32)
         self._reversed_taps = np.ascontiguousarray(self.taps[::-1])
@@ -70,6 +70,7 @@ class StreamDecimator:
 
 def reference_process(taps: np.ndarray, ext: np.ndarray, phase: int, m: int) -> np.ndarray:
     """The slow reference of the kernel: the outputs whose newest input is ext[phase + L-1 + j*M]."""
+    from scipy import signal
     n_tail = len(taps) - 1
     y = signal.upfirdn(taps, ext[phase:], 1, m)
     count = max(0, (len(ext) - phase - n_tail + m - 1) // m)

@@ -31,6 +31,13 @@ SLOW_FRACTION = 0.9      # arriving below this fraction of the stated rate, whil
 WAITING_FRACTION = 0.5   # ... "while we wait": at least this share of the window spent blocked on the stream
 LAGGING_FRACTION = 0.98  # consuming below this fraction without waiting: we are behind the live stream
 MAX_READ_SAMPLES = 1 << 20   # input samples per read: a 25 MSa/s stream costs 8 MB at a time, not 0.1 s's 20 MB
+HUGE_ARRAY_BYTES = 1 << 22   # numpy backs arrays from this size on with transparent huge pages
+
+
+def chunk_seconds(fs_hz: float, nominal_s: float = 0.1) -> float:
+    """nominal_s, or longer so that a chunk of complex64 samples is a huge-page array: each chunk's fresh arrays
+    then cost the kernel a few page faults instead of a thousand (a second of system time per minute at 4 MSa/s)."""
+    return max(nominal_s, 1.05 * HUGE_ARRAY_BYTES / (8 * fs_hz))
 
 
 class SourceError(ValueError):

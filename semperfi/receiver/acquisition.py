@@ -10,10 +10,12 @@ from typing import Iterable
 
 import numpy as np
 import scipy.fft
-from scipy import stats
+from numba import njit
 
 from ..gps.codes import ca_code
 from ..gps.constants import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, CA_CODE_PERIOD_S, L1_HZ
+from .chisquare import chi2_isf, chi2_median
+from .workers import cores
 
 
 @dataclass(frozen=True)
@@ -139,16 +141,15 @@ def second_peak_ratio(power: np.ndarray, row: int, col: int, fs_hz: float, exclu
     signal stands alone (ratio well above 1); noise and spurs give a second peak nearly as high (ratio ~1)."""
     n = power.shape[1]
     half = int(np.ceil(exclude_chips * fs_hz / CA_CHIP_RATE_HZ))
-    keep = np.ones(n, dtype=bool)
-    keep[(col + np.arange(-half, half + 1)) % n] = False
-    rest = power[:, keep]
-    return float(power[row, col] / rest.max()) if rest.size else float("inf")
+    rest = power.max(axis=0)
+    rest[(col + np.arange(-half, half + 1)) % n] = -np.inf
+    return float(power[row, col] / rest.max()) if np.isfinite(rest.max()) else float("inf")
 
 
 def _threshold(pfa: float, n_cells: int, n_noncoherent: int) -> float:
     """Threshold on mean |R|^2/sigma^2 over K looks so that the whole search has false-alarm probability pfa."""
     pfa_cell = -np.expm1(np.log1p(-pfa) / n_cells)
-    return float(stats.chi2.isf(pfa_cell, 2 * n_noncoherent) / (2 * n_noncoherent))
+    return float(chi2_isf(pfa_cell, 2 * n_noncoherent) / (2 * n_noncoherent))
 
 
 def _empirical_threshold(power: np.ndarray, pfa_cell: float, dopplers_hz: np.ndarray, coherent_s: float) -> float:
@@ -173,16 +174,35 @@ def _interp(y_minus: float, y0: float, y_plus: float) -> float:
 
 def find_peaks(power: np.ndarray, threshold: float, max_peaks: int) -> list[tuple[int, int]]:
     """Local maxima (3x3, circular in code phase) above threshold, strongest first."""
-    padded = np.pad(power, ((1, 1), (0, 0)), constant_values=-np.inf)
-    is_max = power >= threshold
+    rows, cols = np.nonzero(power >= threshold)   # few cells: only they are compared with their neighbours
+    value = power[rows, cols]
+    is_max = np.ones(rows.size, dtype=bool)
     for dd in (-1, 0, 1):
-        shifted_d = padded[1 + dd: padded.shape[0] - 1 + dd]
+        r = rows + dd
+        inside = (r >= 0) & (r < power.shape[0])   # beyond the Doppler edges: no neighbour
         for dc in (-1, 0, 1):
             if dd or dc:
-                is_max &= power >= np.roll(shifted_d, dc, axis=1)
-    rows, cols = np.nonzero(is_max)
+                c = (cols + dc) % power.shape[1]
+                is_max[inside] &= value[inside] >= power[r[inside], c[inside]]
+    rows, cols = rows[is_max], cols[is_max]
     order = np.argsort(-power[rows, cols], kind="stable")[:max_peaks]
     return [(int(rows[i]), int(cols[i])) for i in order]
+
+
+MEDIAN_STRIDE = 4
+
+
+@njit(cache=True, nogil=True)
+def noncoherent_power(coh):
+    """|coh|^2 averaged over axis 1 of a (Doppler, look, code phase) array: float32 (Doppler, code phase)."""
+    n_d, n_k, n = coh.shape
+    out = np.zeros((n_d, n), dtype=np.float32)
+    for d in range(n_d):
+        for k in range(n_k):
+            for i in range(n):
+                v = coh[d, k, i]
+                out[d, i] += v.real * v.real + v.imag * v.imag
+    return out / np.float32(n_k)
 
 
 def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: DopplerGrid = DopplerGrid(),
@@ -213,7 +233,7 @@ def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: Dopple
     code_chips = np.arange(n_ms) * CA_CHIP_RATE_HZ / fs_hz
     thr_theory = _threshold(pfa, dopplers.size * n_ms, noncoherent)
     pfa_cell = -np.expm1(np.log1p(-pfa) / (dopplers.size * n_ms))
-    chi_median = stats.chi2.median(2 * noncoherent) / (2 * noncoherent)
+    chi_median = chi2_median(2 * noncoherent) / (2 * noncoherent)
     # The Doppler wipe-off is shared by all PRNs: FFT each 1 ms block once per Doppler bin. The coherent sum of a
     # replica's correlations is the correlation of the summed spectra (the transform is linear): one inverse FFT
     # per non-coherent block instead of one per millisecond.
@@ -225,11 +245,15 @@ def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: Dopple
         blocks = scipy.fft.fft(x.reshape(-1, n_ms) * carrier, axis=1)
         spectra[i] = np.conj(blocks.reshape(noncoherent, coherent_ms, n_ms).sum(axis=1))
     result = {}
+    work = np.empty_like(spectra)
     for prn in prns:
-        coh = scipy.fft.ifft(spectra * _local_replica_fft(prn, n_ms, fs_hz), axis=2)
-        raw = np.mean(np.abs(coh) ** 2, axis=1)
-        sigma2 = (np.median(raw, axis=1, keepdims=True) if tail_threshold else np.median(raw)) / chi_median
-        power = (raw / sigma2).astype(np.float32)
+        np.multiply(spectra, _local_replica_fft(prn, n_ms, fs_hz), out=work)
+        coh = scipy.fft.ifft(work, axis=2, overwrite_x=True, workers=cores())
+        raw = noncoherent_power(coh)
+        # the noise floor from every MEDIAN_STRIDE-th code phase: the same median to a fraction of a percent
+        sample = raw[:, ::MEDIAN_STRIDE]
+        sigma2 = (np.median(sample, axis=1, keepdims=True) if tail_threshold else np.median(sample)) / chi_median
+        power = raw / np.asarray(sigma2, dtype=np.float32)
         thr = thr_theory
         if tail_threshold:
             thr = max(thr, _empirical_threshold(power, pfa_cell, dopplers, coherent_ms * CA_CODE_PERIOD_S))

@@ -16,6 +16,7 @@ from .pvt import solve
 from .rinex_obs import ObsEpoch
 from .integrity import IntegrityConfig, SigmaModel
 from .tracking import NEXT_SAMPLE, Channel, LoopConfig, initial_state
+from .workers import run_each
 from .types import Fix, Observation
 
 TYPICAL_FLIGHT_S = 0.075       # first guess of the signals' travel time, to start the receiver clock
@@ -71,7 +72,8 @@ class Receiver:
         self.stats = RunStats()
         self.iono = assisted.iono if assisted else None
         self.utc = None
-        self._buf = np.empty(0, dtype=np.complex64)
+        self._store = np.empty(0, dtype=np.complex64)   # reused from chunk to chunk; _buf is its filled head
+        self._buf = self._store
         self._base = 0                              # absolute index of _buf[0]
         self._next_acq_sample = 0
         self._epoch_period = self.fs_hz / cfg["pvt"]["rate_hz"]
@@ -140,14 +142,14 @@ class Receiver:
     # -- the stream -----------------------------------------------------------------------------------------
     def feed(self, chunk: np.ndarray) -> None:
         """Process the next consecutive chunk of samples."""
-        self._buf = np.concatenate([self._buf, np.asarray(chunk, dtype=np.complex64)])
+        self._append(chunk)
         end = self._base + self._buf.size
         self.stats.samples = end
         if end >= self._next_acq_sample and self._buf.size >= self.acq_samples:
             self._acquire()
             self._next_acq_sample = end + int(self.cfg["acquisition"]["reacquire_s"] * self.fs_hz)
+        run_each(lambda ch: ch.process(self._buf, self._base), self.channels.values())
         for prn, ch in list(self.channels.items()):
-            ch.process(self._buf, self._base)
             self._decode(prn, ch)
             twin = self._cross_talk_source(prn, ch)
             if twin is not None:
@@ -165,7 +167,20 @@ class Receiver:
         keep = max(2 * self.samples_per_ms + 2, self.acq_samples)
         if self._buf.size > keep:
             self._base += self._buf.size - keep
-            self._buf = self._buf[-keep:].copy()
+            self._buf = self._buf[-keep:]
+
+    def _append(self, chunk: np.ndarray) -> None:
+        """_buf += chunk in one buffer kept for the whole run: a fresh array per chunk costs the kernel a page
+        fault per 4 KiB (glibc hands big arrays back to the system, see cli._bounded_heap)."""
+        kept, n = self._buf.size, self._buf.size + len(chunk)
+        if n > self._store.size:
+            store = np.empty(max(n, 2 * self._store.size), dtype=np.complex64)
+            store[:kept] = self._buf
+            self._store = store
+        else:
+            self._store[:kept] = self._buf   # the kept tail to the front (numpy copies overlapping ranges safely)
+        self._store[kept:n] = chunk
+        self._buf = self._store[:n]
 
     def _cross_talk_source(self, prn: int, ch: Channel) -> int | None:
         """The PRN whose much stronger signal this channel is really tracking, through the codes' cross-correlation.

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
-from scipy import optimize, stats
+from .chisquare import chi2_isf, ncx2_noncentrality
 
 CHIP_M = 299792458.0 / 1.023e6
 RAIM_STATES = ("pass", "fail", "excluded", "unverifiable")
@@ -92,7 +92,7 @@ def chi2_test(h_enu, residual_m, sigma, pfa: float) -> RaimTest:
     _, _, p = _projection(h, w)
     r = p @ y
     t = float(np.sum(w * r ** 2))
-    thr = float(stats.chi2.isf(pfa, dof))
+    thr = float(chi2_isf(pfa, dof))
     return RaimTest(t, thr, dof, t <= thr)
 
 
@@ -105,11 +105,10 @@ def normalized_residuals(h_enu, residual_m, sigma) -> np.ndarray:
     return (p @ y) / np.sqrt(np.maximum(var_r, 1e-12 * s ** 2))
 
 
-@lru_cache(maxsize=512)   # a root search on the non-central chi-square: once per (dof, pfa, pmd)
+@lru_cache(maxsize=512)   # an inverse of the non-central chi-square: once per (dof, pfa, pmd)
 def pbias(dof: int, pfa: float, pmd: float) -> float:
     """sqrt of the non-centrality at which a chi2(dof) test with false alarm pfa misses with probability pmd."""
-    thr = stats.chi2.isf(pfa, dof)
-    lam = optimize.brentq(lambda nc: stats.ncx2.cdf(thr, dof, nc) - pmd, 1e-9, 1e4)
+    lam = ncx2_noncentrality(chi2_isf(pfa, dof), dof, pmd)
     return float(np.sqrt(lam))
 
 

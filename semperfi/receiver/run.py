@@ -9,15 +9,12 @@ from pathlib import Path
 
 from .. import config
 from ..gps.time import GpsTime
-from ..iq.source import SampleSource, SourceError, open_source
+from ..iq.source import SampleSource, SourceError, chunk_seconds, open_source
 from .chain import Receiver, RunStats
 from .config import DEFAULTS
 from .navigation import AssistedNav
 from .outputs import OutputWriter, write_config
 from .types import Fix
-
-CHUNK_S = 0.1
-
 
 class NoSignal(ValueError):
     """Nothing could be acquired: almost always a wrong sample rate, format or IF."""
@@ -79,7 +76,7 @@ def run_file(path: str | Path, fmt: str | None, fs_hz: float | None, if_hz: floa
             live_ctx.start()
         try:
             last_draw = 0.0
-            for chunk in source.chunks(CHUNK_S):
+            for chunk in source.chunks(chunk_seconds(source.fs_hz)):
                 receiver.feed(chunk)
                 _report_notices(source, out)
                 now = time.perf_counter()

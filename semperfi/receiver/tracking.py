@@ -8,9 +8,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from ..gps.codes import ca_code
 from ..gps.constants import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, L1_HZ
-from .correlator import WIPE_TABLE, block_length, correlate_block, extended_code
+from .correlator import block_length, code_bank, correlate_block, lane_buffer
 
 # state vector of a channel (float64), shared by the kernel and its reference
 CODE_PHASE, CODE_RATE, CARR_PHASE, CARR_FREQ, FREQ_STATE, PREV_I, PREV_Q, HAVE_PREV, CARR_TOTAL, NEXT_SAMPLE = range(10)
@@ -68,14 +67,14 @@ def loop_update(st, prm, e, p, l):
 
 
 @njit(cache=True, nogil=True)
-def track_kernel(x, base_sample, st, prm, code_ext, table, out_e, out_p, out_l, out_epoch, out_doppler, out_carr,
-                 out_block):
+def track_kernel(x, base_sample, st, prm, rows, first, bank_step, lanes, out_e, out_p, out_l, out_epoch, out_doppler,
+                 out_carr, out_block):
     """Track through x (whose first sample is absolute index base_sample) while whole code periods remain.
 
     Each period's E/P/L, the absolute (fractional) sample index of its code epoch, the Doppler and the accumulated
     carrier phase at that epoch are written to the out arrays, and the replica that was correlated to out_block
     (first sample, samples, code phase, code step, carrier phase, carrier step: what a canceller needs to rebuild
-    it); returns how many periods were processed.
+    it); returns how many periods were processed. rows/first/bank_step: the PRN's CodeBank; lanes: scratch.
     """
     fs = prm[FS]
     m = 0
@@ -89,7 +88,8 @@ def track_kernel(x, base_sample, st, prm, code_ext, table, out_e, out_p, out_l, 
         if offset + n > x.size:
             break
         carr_step = (prm[IF] + st[CARR_FREQ]) / fs
-        e, p, l = correlate_block(x, offset, n, code_ext, cp, step, st[CARR_PHASE], carr_step, prm[HALF_SPACING], table)
+        e, p, l = correlate_block(x, offset, n, rows, first, bank_step, cp, step, st[CARR_PHASE], carr_step,
+                                  prm[HALF_SPACING], lanes)
         out_e[m], out_p[m], out_l[m] = e, p, l
         out_epoch[m] = st[NEXT_SAMPLE] - cp / step
         out_doppler[m] = st[CARR_FREQ]
@@ -196,7 +196,8 @@ class Channel:
     def __init__(self, prn: int, fs_hz: float, if_hz: float, state: np.ndarray, cfg: LoopConfig = LoopConfig()):
         self.prn, self.fs_hz, self.if_hz, self.cfg = prn, fs_hz, if_hz, cfg
         self.st = state
-        self.code_ext = extended_code(ca_code(prn))
+        self.bank = code_bank(prn, fs_hz)
+        self._lanes = lane_buffer()
         self.ms = 0                    # code periods tracked so far
         self.bits = BitSync()
         self.cn0_dbhz = np.nan
@@ -228,13 +229,13 @@ class Channel:
         # the FLL switches off at the end of pull-in: run the kernel up to that boundary first
         if self.pull_in:
             limit = min(max_ms, self.cfg.pull_in_ms - self.ms)
-            m = track_kernel(x, base_sample, self.st, prm, self.code_ext, WIPE_TABLE, out_e[:limit], out_p[:limit],
+            m = track_kernel(x, base_sample, self.st, prm, *self._bank_args(), out_e[:limit], out_p[:limit],
                              out_l[:limit], out_epoch[:limit], out_dopp[:limit], out_carr[:limit], out_block[:limit])
             prm = loop_params(self.fs_hz, self.if_hz, self.cfg, False)
         if self.ms >= self.cfg.narrow_after_ms:
             prm = loop_params(self.fs_hz, self.if_hz, self.cfg, False, narrow=True)
         if m < max_ms:
-            m += track_kernel(x, base_sample, self.st, prm, self.code_ext, WIPE_TABLE, out_e[m:], out_p[m:], out_l[m:],
+            m += track_kernel(x, base_sample, self.st, prm, *self._bank_args(), out_e[m:], out_p[m:], out_l[m:],
                               out_epoch[m:], out_dopp[m:], out_carr[m:], out_block[m:])
         idx = (first + np.arange(m)) % self.HISTORY_MS
         self.epoch_sample[idx], self.doppler_hz[idx] = out_epoch[:m], out_dopp[:m]
@@ -245,6 +246,9 @@ class Channel:
             self.bits.push(out_p[:m].real, first)
         self.last_blocks = out_block[:m]
         return out_p[:m], first
+
+    def _bank_args(self) -> tuple:
+        return self.bank.rows, self.bank.first, self.bank.step_chips, self._lanes
 
     def _update_lock(self, prompt: np.ndarray) -> None:
         self._window.append(prompt)

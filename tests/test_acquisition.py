@@ -1,0 +1,59 @@
+"""Acquisition's fast paths against plain numpy references."""
+
+import numpy as np
+import pytest
+
+from semperfi.receiver.acquisition import find_peaks, noncoherent_power, second_peak_ratio
+
+
+def test_noncoherent_power_equals_numpy():
+    rng = np.random.default_rng(3)
+    coh = (rng.standard_normal((7, 5, 300)) + 1j * rng.standard_normal((7, 5, 300))).astype(np.complex64)
+    assert np.allclose(noncoherent_power(coh), np.mean(np.abs(coh) ** 2, axis=1), rtol=1e-5)
+
+
+def find_peaks_reference(power, threshold, max_peaks):
+    """Every cell against its 8 neighbours (circular in code phase, none beyond the Doppler edges)."""
+    out = []
+    n_d, n = power.shape
+    for r in range(n_d):
+        for c in range(n):
+            v = power[r, c]
+            if v < threshold:
+                continue
+            if all(v >= power[r + dd, (c + dc) % n] for dd in (-1, 0, 1) for dc in (-1, 0, 1)
+                   if (dd or dc) and 0 <= r + dd < n_d):
+                out.append((r, c))
+    out.sort(key=lambda rc: -power[rc])
+    return out[:max_peaks]
+
+
+def test_find_peaks_equals_its_reference():
+    rng = np.random.default_rng(8)
+    for _ in range(20):
+        power = rng.exponential(1.0, (9, 200)).astype(np.float32)
+        for r, c in rng.integers(0, [9, 200], (4, 2)):   # peaks, some on the edges and on the code wrap
+            power[r, c] += rng.uniform(5, 30)
+        power[0, 199] += 40.0
+        want = find_peaks_reference(power, 6.0, 8)
+        assert find_peaks(power, 6.0, 8) == want and want
+
+
+def test_second_peak_ratio_skips_the_peaks_own_code_phases():
+    power = np.ones((5, 100), dtype=np.float32)
+    power[2, 99] = 50.0
+    power[4, 1] = 40.0          # 2 samples away across the wrap: excluded (1.5 chips at 1.023 MSa/s = 2 samples)
+    power[0, 50] = 10.0
+    assert second_peak_ratio(power, 2, 99, 1.023e6) == 5.0
+
+
+def test_chi_square_quantiles_equal_scipy_stats():
+    from scipy import stats
+    from semperfi.receiver.chisquare import chi2_isf, chi2_median, ncx2_cdf, ncx2_noncentrality
+    for dof in (1, 2, 5, 10, 40):
+        for p in (0.5, 1e-3, 1e-9):
+            assert chi2_isf(p, dof) == pytest.approx(stats.chi2.isf(p, dof), rel=1e-9)
+        assert chi2_median(dof) == pytest.approx(stats.chi2.median(dof), rel=1e-9)
+        assert ncx2_cdf(12.0, dof, 3.5) == pytest.approx(stats.ncx2.cdf(12.0, dof, 3.5), rel=1e-7)
+        thr = chi2_isf(1e-3, dof)    # RAIM's use: the bias a test at this threshold misses with probability 1e-3
+        assert stats.ncx2.cdf(thr, dof, ncx2_noncentrality(thr, dof, 1e-3)) == pytest.approx(1e-3, rel=1e-6)
