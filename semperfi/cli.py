@@ -13,21 +13,23 @@ def _fail(message: str) -> None:
     sys.exit(2)
 
 
-def _bounded_heap() -> None:
-    """Keep a streaming process's memory flat: glibc raises its mmap threshold each time a big array is freed, after
-    which the receiver's per-chunk arrays come from the heap and fragment it (the peak crept up over a long run).
-    A fixed threshold gives every array over 128 KiB back to the system when it is freed."""
+def _tune_heap() -> None:
+    """Fixed glibc malloc thresholds for a streaming process. Arrays up to 64 MiB come from the heap and are reused
+    there: handed back to the system at each free (the mmap default from 128 KiB), every chunk's fresh arrays cost
+    the kernel a page fault per 4 KiB (3 million faults, half the run's time, in a 10 MSa/s defended run). Free
+    memory at the heap's top beyond 128 MiB still goes back. Fixed values, not glibc's dynamic threshold (which
+    rises with each big free, and then let a long run's peak creep)."""
     import ctypes
     import ctypes.util
     name = ctypes.util.find_library("c")
     try:
-        libc = ctypes.CDLL(name) if name else None
-        mallopt = libc.mallopt if libc is not None else None
+        mallopt = ctypes.CDLL(name).mallopt if name else None
     except (OSError, AttributeError):   # not glibc: nothing to tune
         return
     if mallopt is not None:
-        m_mmap_threshold = -3
-        mallopt(m_mmap_threshold, 128 * 1024)
+        m_trim_threshold, m_mmap_threshold = -1, -3
+        mallopt(m_mmap_threshold, 64 << 20)
+        mallopt(m_trim_threshold, 128 << 20)
 
 
 FORMAT_HELP = ("ibyte | ishort | gr_complex | byte | short (real, with --if) | packed real2 iq2 real2sm iq2sm real4 "
@@ -51,7 +53,7 @@ def _window_options(command):
 @click.version_option(__version__)
 def main() -> None:
     """SemperFi: a spoofer-eliminating GPS L1 C/A receiver, and the world it is proven against."""
-    _bounded_heap()
+    _tune_heap()
 
 
 @main.command()

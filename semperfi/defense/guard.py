@@ -69,7 +69,7 @@ class SpoofGuard:
         """Samples in; the cleaned samples out (in order, a little behind: cancellation holds back a code period)."""
         chunk = np.asarray(chunk, dtype=np.complex64)
         self._seen += chunk.size
-        self._raw = np.concatenate([self._raw, chunk])[-self.window:]
+        self._raw = np.concatenate([self._raw, chunk[-self.window:]])[-self.window:]
         if self.maneuver is not None:
             self.maneuver.push(chunk)
             if self.maneuver.due_to_end(self._seen / self.fs_hz):
@@ -88,7 +88,7 @@ class SpoofGuard:
         cleaned = self.canceller.push(chunk)
         self._forget_lost(self._seen / self.fs_hz)
         self._cleaned += cleaned.size
-        self._clean = np.concatenate([self._clean, cleaned])[-self.window:]
+        self._clean = np.concatenate([self._clean, cleaned[-self.window:]])[-self.window:]
         self._verify()
         return cleaned
 

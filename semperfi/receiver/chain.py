@@ -170,8 +170,8 @@ class Receiver:
             self._buf = self._buf[-keep:]
 
     def _append(self, chunk: np.ndarray) -> None:
-        """_buf += chunk in one buffer kept for the whole run: a fresh array per chunk costs the kernel a page
-        fault per 4 KiB (glibc hands big arrays back to the system, see cli._bounded_heap)."""
+        """_buf += chunk in one buffer kept for the whole run: where malloc hands big arrays back to the system
+        (glibc's default, unless cli._tune_heap ran), a fresh array per chunk costs a page fault per 4 KiB."""
         kept, n = self._buf.size, self._buf.size + len(chunk)
         if n > self._store.size:
             store = np.empty(max(n, 2 * self._store.size), dtype=np.complex64)

@@ -1,12 +1,15 @@
-"""Worker threads for the numba kernels, which release the GIL.
+"""Worker threads for the numba kernels, which release the GIL, and the per-thread scratch buffers they reuse.
 
 Channels (and the canceller's tracks) are independent of one another, so running them at once changes no result,
 only the wall time.
 """
 
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from typing import Callable, Iterable, TypeVar
+
+import numpy as np
 
 MAX_WORKERS = 4
 T, R = TypeVar("T"), TypeVar("R")
@@ -30,3 +33,20 @@ def run_each(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
     if _POOL is None:
         _POOL = ThreadPoolExecutor(max_workers=min(MAX_WORKERS, cores()), thread_name_prefix="semperfi")
     return list(_POOL.map(fn, items))
+
+
+_LOCAL = threading.local()
+
+
+def scratch(name: str, shape: tuple, dtype) -> np.ndarray:
+    """A buffer of this thread's, reused from call to call until the next call with the same name: where malloc
+    hands big arrays back to the system (glibc's default, unless cli._tune_heap ran), a fresh array of megabytes per
+    call costs a page fault per 4 KiB."""
+    buffers = getattr(_LOCAL, "buffers", None)
+    if buffers is None:
+        buffers = _LOCAL.buffers = {}
+    size = int(np.prod(shape))
+    buf = buffers.get(name)
+    if buf is None or buf.size < size or buf.dtype != np.dtype(dtype):
+        buf = buffers[name] = np.empty(size, dtype=dtype)
+    return buf[:size].reshape(shape)
