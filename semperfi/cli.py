@@ -30,6 +30,7 @@ def _tune_heap() -> None:
         m_trim_threshold, m_mmap_threshold = -1, -3
         mallopt(m_mmap_threshold, 64 << 20)
         mallopt(m_trim_threshold, 128 << 20)
+        mallopt(-8, 1)
 
 
 FORMAT_HELP = ("ibyte | ishort | gr_complex | byte | short (real, with --if) | packed real2 iq2 real2sm iq2sm real4 "

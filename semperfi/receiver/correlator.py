@@ -11,8 +11,8 @@ a float64 phasor per sub-block times precomputed lane phasors. The inner loop ha
 vectorises it.
 """
 
+import weakref
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 from numba import njit
@@ -20,7 +20,8 @@ from numba import njit
 from ..gps.codes import ca_code
 from ..gps.constants import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS
 
-QUANTUM_CHIPS = 5e-4        # replica phases are rounded to this (0.15 m): far below the DLL's noise
+QUANTUM_CHIPS = 1e-3        # replica phases are within this (0.3 m) of the true code, dithered as the code moves:
+                            # far below the DLL's noise (5e-4 gave the same fixes, for a bank twice as big)
 BANK_MARGIN_CHIPS = 4.0     # code wrapped on each side: more than early/late and the canceller's probes (1.5 chips) reach
 MAX_SUB_SAMPLES = 1024      # longest sub-block (the lane phasors' length)
 LANE_GROUP = 16
@@ -37,9 +38,19 @@ class CodeBank:
         return self
 
 
-@lru_cache(maxsize=48)
+_BANKS: "weakref.WeakValueDictionary[tuple[int, float], CodeBank]" = weakref.WeakValueDictionary()
+
+
 def code_bank(prn: int, fs_hz: float) -> CodeBank:
-    """The bank for a PRN at a sample rate (about 2 MB whatever the rate; cached: channels come and go)."""
+    """The bank for a PRN at a sample rate (1 MB whatever the rate), shared by the channels of that PRN (the
+    receiver's, the canceller's, the identifier's) while one of them holds it."""
+    bank = _BANKS.get((prn, fs_hz))
+    if bank is None:
+        bank = _BANKS[(prn, fs_hz)] = _make_bank(prn, fs_hz)
+    return bank
+
+
+def _make_bank(prn: int, fs_hz: float) -> CodeBank:
     step = CA_CHIP_RATE_HZ / fs_hz
     phases = int(np.ceil(step / QUANTUM_CHIPS))
     first = int(np.ceil(BANK_MARGIN_CHIPS / step))
