@@ -57,3 +57,20 @@ def test_chi_square_quantiles_equal_scipy_stats():
         assert ncx2_cdf(12.0, dof, 3.5) == pytest.approx(stats.ncx2.cdf(12.0, dof, 3.5), rel=1e-7)
         thr = chi2_isf(1e-3, dof)    # RAIM's use: the bias a test at this threshold misses with probability 1e-3
         assert stats.ncx2.cdf(thr, dof, ncx2_noncentrality(thr, dof, 1e-3)) == pytest.approx(1e-3, rel=1e-6)
+
+
+def test_doppler_wipe_by_spectrum_shift_equals_a_wipe_per_bin():
+    """Whole-ms blocks: Dopplers k kHz apart share one FFT, shifted by k bins; above 4.096 MSa/s only the central
+    bins are kept. Against the plain wipe-off and FFT of each Doppler bin."""
+    from semperfi.receiver.acquisition import DopplerGrid, _kept_bins, _wiped_spectra
+    rng = np.random.default_rng(5)
+    for fs, if_hz in ((2e6, 0.0), (5e6, 1.25e6)):
+        n_ms = int(fs / 1e3)
+        x = (rng.standard_normal(4 * n_ms) + 1j * rng.standard_normal(4 * n_ms)).astype(np.complex64)
+        dopplers = DopplerGrid(130.0, 3000.0, 333.0).khz_periodic().values_hz()
+        fast = _wiped_spectra(x, fs, if_hz, dopplers, n_ms, coherent_ms=2, noncoherent=2).copy()
+        t = np.arange(x.size) / fs
+        for i, f in enumerate(dopplers):
+            blocks = np.fft.fft((x * np.exp(-2j * np.pi * (f + if_hz) * t)).reshape(-1, n_ms), axis=1)
+            want = np.conj(blocks.reshape(2, 2, n_ms).sum(axis=1))[:, _kept_bins(n_ms)]
+            assert np.allclose(fast[i], want, atol=1e-3 * np.abs(want).max()), (fs, f)
