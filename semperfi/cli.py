@@ -17,8 +17,9 @@ def _tune_heap() -> None:
     """Fixed glibc malloc thresholds for a streaming process. Arrays up to 64 MiB come from the heap and are reused
     there: handed back to the system at each free (the mmap default from 128 KiB), every chunk's fresh arrays cost
     the kernel a page fault per 4 KiB (3 million faults, half the run's time, in a 10 MSa/s defended run). Free
-    memory at the heap's top beyond 128 MiB still goes back. Fixed values, not glibc's dynamic threshold (which
-    rises with each big free, and then let a long run's peak creep)."""
+    memory at the heap's top beyond 128 MiB still goes back. One arena: worker threads' own arenas would each keep
+    their own free memory. Fixed values, not glibc's dynamic threshold (which rises with each big free, and then let
+    a long run's peak creep)."""
     import ctypes
     import ctypes.util
     name = ctypes.util.find_library("c")
@@ -27,10 +28,10 @@ def _tune_heap() -> None:
     except (OSError, AttributeError):   # not glibc: nothing to tune
         return
     if mallopt is not None:
-        m_trim_threshold, m_mmap_threshold = -1, -3
+        m_trim_threshold, m_mmap_threshold, m_arena_max = -1, -3, -8
         mallopt(m_mmap_threshold, 64 << 20)
         mallopt(m_trim_threshold, 128 << 20)
-        mallopt(-8, 1)
+        mallopt(m_arena_max, 1)
 
 
 FORMAT_HELP = ("ibyte | ishort | gr_complex | byte | short (real, with --if) | packed real2 iq2 real2sm iq2sm real4 "

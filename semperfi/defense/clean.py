@@ -11,7 +11,6 @@ from ..receiver.outputs import EventLog
 from .guard import SpoofGuard
 
 
-
 @dataclass(frozen=True)
 class CleanSummary:
     out_path: Path

@@ -107,6 +107,11 @@ def _local_replica_fft(prn: int, n: int, fs_hz: float) -> np.ndarray:
     return spectrum
 
 
+def _whole_ms(fs_hz: float, n_ms: int) -> bool:
+    """Whether a block of n_ms samples is exactly one code period (then Dopplers k kHz apart share FFTs)."""
+    return abs(fs_hz * CA_CODE_PERIOD_S - n_ms) < 1e-9 * n_ms
+
+
 def _wiped_spectra(x: np.ndarray, fs_hz: float, if_hz: float, dopplers: np.ndarray, n_ms: int, coherent_ms: int,
                    noncoherent: int) -> np.ndarray:
     """conj(spectrum) of each coherent sum of 1 ms blocks after each Doppler's wipe-off: (Doppler, look, bin).
@@ -128,12 +133,11 @@ def _wiped_spectra(x: np.ndarray, fs_hz: float, if_hz: float, dopplers: np.ndarr
         blocks = scipy.fft.fft(x.reshape(-1, n_ms) * carrier, axis=1, overwrite_x=True, workers=cores())
         return blocks.reshape(noncoherent, coherent_ms, n_ms).sum(axis=1)
 
-    whole_ms = abs(fs_hz * CA_CODE_PERIOD_S - n_ms) < 1e-9 * n_ms
-    if not whole_ms:
+    if not _whole_ms(fs_hz, n_ms):
         for i, f in enumerate(dopplers):
             spectra[i] = np.conj(block_sums(f + if_hz)[:, kept])
         return spectra
-    khz = np.round((dopplers + if_hz) / 1e3 - np.mod((dopplers + if_hz) / 1e3, 1.0)).astype(np.int64)
+    khz = np.floor((dopplers + if_hz) / 1e3).astype(np.int64)
     fraction_hz = np.round(dopplers + if_hz - 1e3 * khz, 6)
     for frac in np.unique(fraction_hz):
         sums = block_sums(frac)
@@ -286,7 +290,7 @@ def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: Dopple
     excised = 0
     if excise:
         x, excised = excise_narrowband(x, n_ms)
-    if abs(fs_hz * CA_CODE_PERIOD_S - n_ms) < 1e-9 * n_ms:   # whole-ms blocks: Dopplers k kHz apart share FFTs
+    if _whole_ms(fs_hz, n_ms):
         grid = grid.khz_periodic()
     dopplers = grid.values_hz()
     n_cols = caf_columns(n_ms)

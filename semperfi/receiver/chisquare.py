@@ -13,11 +13,7 @@ def chi2_median(dof):
     return chi2_isf(0.5, dof)
 
 
-def ncx2_cdf(x, dof, nc):
-    """P(X <= x) for a non-central chi-square with dof degrees of freedom and non-centrality nc."""
-    return special.chndtr(x, dof, nc)
-
-
 def ncx2_noncentrality(x, dof, p):
-    """The non-centrality at which ncx2_cdf(x, dof, nc) = p."""
+    """The non-centrality at which a non-central chi-square with dof degrees of freedom is at most x with
+    probability p."""
     return special.chndtrinc(x, dof, p)

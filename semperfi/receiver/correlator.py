@@ -69,7 +69,8 @@ def lane_buffer() -> np.ndarray:
 
 @njit(cache=True, nogil=True)
 def fill_lanes(lanes, step_cycles, m, sign):
-    """lanes[j] = exp(sign j 2 pi j step_cycles) for j < m: groups of LANE_GROUP from two short recurrences."""
+    """lanes[j] = exp(sign * 2 pi i * j * step_cycles) for j < m (rounded up to whole groups of LANE_GROUP), from
+    two short recurrences: one within a group, one from group to group."""
     a = sign * 2.0 * np.pi * step_cycles
     small = np.empty(LANE_GROUP, dtype=np.complex128)
     r1 = complex(np.cos(a), np.sin(a))

@@ -16,6 +16,7 @@ from .navigation import AssistedNav
 from .outputs import OutputWriter, write_config
 from .types import Fix
 
+
 class NoSignal(ValueError):
     """Nothing could be acquired: almost always a wrong sample rate, format or IF."""
 
