@@ -13,6 +13,7 @@ from semperfi.defense.canceller import (Canceller, caf_amplitude, refine_peak, r
 from semperfi.defense.defended import DefendedReceiver
 from semperfi.defense.detector import SpoofingDetector, chips_apart
 from semperfi.defense.twopath import delay_profile, delay_profile_reference, two_path_test
+from semperfi.gps.codes import ca_code
 from semperfi.gps.geometry import enu_rotation, geodetic_to_ecef
 from semperfi.iq import open_iq
 from semperfi.receiver.acquisition import DopplerGrid, acquire
@@ -97,27 +98,75 @@ def test_no_alarm_on_clean_signals_or_a_short_echo(tmp_path, sets):
     assert not alarms, [(t, a.pair.as_event()) for t, a in alarms]
 
 
-def test_the_legitimate_probe_correlates_with_the_code_moved_by_its_offset():
-    """The canceller's probe correlators (a chip either side of a block, beyond the code's one-chip wrap) against a
-    numpy correlation with the replica moved by the same offset."""
-    from semperfi.defense.canceller import AdversaryTrack, CancellerConfig, PROBE_HALF_SPACING_CHIPS
-    from semperfi.receiver.acquisition import Peak
+@pytest.mark.parametrize("fs", [2e6, 2.6e6, 10e6])
+def test_the_two_path_trackers_correlator_bank_equals_its_reference(fs):
+    """The bank of correlators around a spoofer's replica (lags beyond the code's one-chip wrap, code steps off the
+    bank's nominal rate) against numpy's correlation with the replica moved by each lag."""
+    from semperfi.defense.twopath_track import bank_lags, correlator_bank, correlator_bank_reference
     rng = np.random.default_rng(4)
-    x = (rng.standard_normal(6000) + 1j * rng.standard_normal(6000)).astype(np.complex64)
-    blocks = np.array([[100.0, 1956.0, 0.2731, 0.5230112, 0.25, 0.0007], [2056.0, 1956.0, 0.0913, 0.5230112, 0.61, 0.0007]])
-    for offset in (-1.13, -0.42, 0.77, 1.19):
-        track = AdversaryTrack(5, FS, 0.0, Peak(5, 100.0, 1000.0, 1.0, 45.0), 0, 0, CancellerConfig(), 0, offset)
-        probes = track._probe(x, 0, blocks)
-        for row, shift in enumerate((-PROBE_HALF_SPACING_CHIPS, 0.0, PROBE_HALF_SPACING_CHIPS)):
-            for i, block in enumerate(blocks):
-                moved = block.copy()
-                moved[2] = (moved[2] + offset + shift) % 1023
-                replica = replicas_reference(6000, 0, moved[None], np.ones(1), 5)
-                first, n = int(block[0]), int(block[1])
-                want = np.vdot(replica[first:first + n], x[first:first + n]) / n
-                edge = near_chip_edge(6000, 0, moved[None])[first:first + n]
-                flips = 2 * np.sum(np.abs(x[first:first + n][edge])) / n
-                assert abs(probes[row, i] - want) < 1e-5 + flips, (offset, shift, i, probes[row, i], want)
+    n = int(3.2e-3 * fs)
+    x = (rng.standard_normal(n) + 1j * rng.standard_normal(n)).astype(np.complex64)
+    step = 1.023e6 / fs
+    period = int(np.ceil(1023 / step))
+    blocks = np.array([[100.0, period - 1, 0.2731, step * (1 + 3e-6), 0.25, 0.0007],
+                       [100.0 + period, period, 0.0913, step * (1 - 4e-5), 0.61, -0.0011],
+                       [n - 50.0, period, 0.5, step, 0.0, 0.0]])      # not wholly inside x: nan
+    lags = bank_lags(-1.13)
+    assert lags[0] <= -1.13 - 0.7 and lags[-1] >= 0.7
+    fast = correlator_bank(x, 0, blocks, code_bank(5, fs), lags)
+    slow = correlator_bank_reference(x, 0, blocks, 5, lags)
+    assert np.isnan(fast[2]).all() and np.isnan(slow[2]).all()
+    for i, block in enumerate(blocks[:2]):
+        first, m = int(block[0]), int(block[1])
+        for k, lag in enumerate(lags):
+            moved = block.copy()
+            moved[2] += lag
+            edge = near_chip_edge(n, 0, moved[None])[first:first + m]
+            flips = 2 * np.sum(np.abs(x[first:first + m][edge])) / m
+            assert abs(fast[i, k] - slow[i, k]) < 1e-5 + flips, (fs, i, lag, fast[i, k], slow[i, k])
+
+
+@pytest.mark.parametrize("prn", [8, 7])
+def test_the_fits_code_correlation_is_what_the_bank_measures(prn):
+    """The model of the two-path fit against the bank on a noise-free sampled signal (20 code periods at 2.6 MSa/s):
+    the PRN's own correlation one chip off (-65/1023 for PRN 8, +63/1023 for PRN 7), not a plain triangle; the rest
+    is where samples fall on the chips (a static code phase at 2.54 samples per chip: about 0.015)."""
+    from semperfi.defense.twopath_track import bank_lags, code_correlation, correlator_bank
+    fs = 2.6e6
+    step = 1.023e6 / fs
+    n = int(0.021 * fs)
+    x = ca_code(prn)[np.floor(0.37 + np.arange(n) * step).astype(np.int64) % 1023].astype(np.complex64)
+    starts = np.ceil((np.arange(20) * 1023 - 0.37) / step)
+    blocks = np.array([[s0, np.ceil(((k + 1) * 1023 - 0.37) / step) - s0, (0.37 + s0 * step) % 1023, step, 0.0, 0.0]
+                       for k, s0 in enumerate(starts)])
+    lags = bank_lags(0.0)
+    measured = np.mean(correlator_bank(x, 0, blocks, code_bank(prn, fs), lags).real, axis=0)
+    assert np.max(np.abs(measured - code_correlation(prn, lags))) < 0.02, np.round(measured - code_correlation(prn, lags), 3)
+    assert abs(code_correlation(prn, 1.0) - {8: -65 / 1023, 7: 63 / 1023}[prn]) < 1e-12
+
+
+@pytest.mark.parametrize("twin_chips", [-0.9, -0.35, 0.2, 0.6])
+def test_the_two_path_fit_finds_both_delays_and_never_crosses_over(twin_chips):
+    """Bank correlations of a spoofer (0.03 chip off its replica) and a twin 4 dB weaker, data bits on both, with
+    noise: the ML fit equals the brute-force least squares and lands within 0.01 chip of both; started from a guess
+    0.15 chip off, it keeps the twin on its own side of the spoofer."""
+    from semperfi.defense.twopath_track import bank_lags, code_correlation, fit_two_paths, fit_two_paths_reference
+    rng = np.random.default_rng(11)
+    u_true, lags, periods = 0.03, bank_lags(twin_chips), 200
+    bits = rng.choice([-1.0, 1.0], size=(2, periods))
+    a, legit = 1.0 * np.exp(0.4j) * bits[0], 0.63 * np.exp(2.1j) * bits[1]
+    y = np.outer(a, code_correlation(8, lags - u_true)) + np.outer(legit, code_correlation(8, lags - twin_chips))
+    y = y + 0.05 * (rng.standard_normal(y.shape) + 1j * rng.standard_normal(y.shape))
+    guess = twin_chips + (0.15 if twin_chips > 0 else -0.15)
+    paths = fit_two_paths(8, y, lags, guess)
+    assert abs(paths.spoofer_offset_chips - u_true) < 0.01 and abs(paths.twin_offset_chips - twin_chips) < 0.01, paths
+    assert abs(np.mean(paths.twin_amplitudes * bits[1]) - 0.63 * np.exp(2.1j)) < 0.02   # per period, bits and all
+    us, vs = paths.spoofer_offset_chips + np.arange(-3, 4) * 0.002, paths.twin_offset_chips + np.arange(-3, 4) * 0.002
+    ref = fit_two_paths_reference(8, y, lags, us, vs, np.sign(twin_chips))
+    assert ref == pytest.approx((paths.spoofer_offset_chips, paths.twin_offset_chips), abs=1e-9)
+    lone = np.outer(a, code_correlation(8, lags - u_true)) + 0.05 * rng.standard_normal(y.shape)   # no twin at all
+    fit = fit_two_paths(8, lone, lags, guess)
+    assert fit is None or np.sign(fit.separation_chips) == np.sign(twin_chips), fit
 
 
 def test_sensitive_examination_finds_a_second_signal_closer_than_the_alarm_separation(tmp_path):
@@ -333,7 +382,6 @@ def test_clean_keeps_format_rate_and_length_and_is_deterministic(tmp_path):
 
 def _power_at(x, fs_hz, prn, code_phase_chips, freq_hz, ms=20):
     """Mean power of 1 ms correlations with one PRN's replica at a code phase and a frequency (IF + Doppler)."""
-    from semperfi.gps.codes import ca_code
     n = int(fs_hz * 1e-3)
     k = np.arange(n * ms)
     code = ca_code(prn)[(np.floor(code_phase_chips + k * 1.023e6 / fs_hz).astype(np.int64)) % 1023]

@@ -56,7 +56,9 @@ def test_a_drawn_maneuver_flown_over_mavlink_is_tracked_by_the_imu(vehicle):
     t_ins = flown.ins.t_s
     ins_at = np.stack([np.interp(t, t_ins, ins[:, k] - ins[0, k]) for k in range(3)], axis=-1)
     drift = np.linalg.norm(ins_at - truth, axis=1)
-    assert drift.max() < 6.0, f"INS drifted {drift.max():.1f} m from the truth"
+    # the paper's worst IMU (0.44 m/s after 20 s) drifts about 0.011 m/s^2 * T^2 / 2; twice that, and 6 m at least
+    bound_m = max(6.0, 0.022 * (t[-1] - t[0]) ** 2)
+    assert drift.max() < bound_m, f"INS drifted {drift.max():.1f} m from the truth in {t[-1] - t[0]:.1f} s"
     imu = ImuTrack(t_ins, ins[:, 0], ins[:, 1], ins[:, 2])
     assert not paper_test(imu, GpsTrack(t, *truth.T)).adversarial, "the true track is legitimate"
     spoofed = GpsTrack(t, np.zeros_like(t), np.zeros_like(t), np.zeros_like(t))   # a static spoofed position

@@ -18,6 +18,7 @@ from ..receiver.acquisition import DopplerGrid, Peak, acquire
 from ..receiver.correlator import CodeBank, fill_lanes, lane_buffer, replica, sub_block_samples
 from ..receiver.tracking import NEXT_SAMPLE, Channel, LoopConfig, initial_state
 from ..receiver.workers import run_each
+from .twopath_track import TwoPaths, bank_lags, code_correlation, correlator_bank, fit_two_paths
 
 MEASURE_EVERY = 8                 # code periods per attenuation measurement
 
@@ -145,16 +146,10 @@ def refine_peak(samples: np.ndarray, fs_hz: float, if_hz: float, peak: Peak) -> 
     return near[0] if near else peak
 
 
-def code_correlation(offset_chips: float) -> float:
-    """The C/A code's normalised autocorrelation at an offset: the triangle (sidelobes, -24 dB, neglected)."""
-    return max(0.0, 1.0 - abs(offset_chips))
-
-
 # A legitimate peak closer than this to the spoofer's leaks into the spoofer's amplitude estimate (the code
-# autocorrelation at their offset): both amplitudes are then estimated jointly.
+# autocorrelation at their offset): both signals are then followed jointly by the two-path tracker.
 JOINT_WITHIN_CHIPS = 1.2
-PROBE_HALF_SPACING_CHIPS = 0.25   # where the legitimate signal's offset is measured, either side of it
-OFFSET_GAIN = 0.3                 # fraction of each measured offset error applied per tracked buffer
+TWIN_GAIN = 0.5                   # fraction of each buffer's measured twin offset error applied
 
 
 class AdversaryTrack:
@@ -162,9 +157,10 @@ class AdversaryTrack:
 
     When the legitimate peak of the same PRN lies within about a chip (legit_offset_chips: its code phase minus the
     spoofer's, at the same instant), the spoofer's prompt holds a share of the legitimate signal (the codes'
-    autocorrelation at that offset). Subtracting it would carve an anti-echo into the legitimate signal and bias its
-    tracking, so each code period's two amplitudes are solved together from the spoofer's prompt and a probe
-    correlator at the legitimate signal's offset; the offset itself is followed by an early-late pair of probes.
+    autocorrelation at that offset), and pulls the spoofer's early-late balance. Subtracting that would carve an
+    anti-echo into the legitimate signal and bias its tracking, so both signals are followed by the two-path tracker
+    (twopath_track): each buffer's bank of correlators gives the ML delays of both and each code period's two
+    amplitudes; the twin is taken out of a copy of the samples, and the spoofer tracked again on it.
     """
 
     def __init__(self, prn: int, fs_hz: float, if_hz: float, peak: Peak, peak_sample: int, start_after_sample: int,
@@ -179,6 +175,7 @@ class AdversaryTrack:
         self._ref = 0j                 # smoothed complex amplitude (bit removed)
         self._legit_ref = 0j           # the same for a legitimate signal within a chip
         self._legit_est: np.ndarray | None = None   # its amplitude per code period of the last buffer
+        self._twin_lag = 0.0           # and where it was, from the spoofer's replica
         self._lam = 1.0 / cfg.smoothing_ms
         self._acc_signal = self._acc_residual = self._acc_noise = 0.0
         self._acc_n = 0
@@ -197,28 +194,34 @@ class AdversaryTrack:
         before = copy.deepcopy(self.channel) if self._joint() else None
         prompts, _ = self.channel.process(tracked, base_sample)
         blocks = self.channel.last_blocks
-        self._probes = self._legit_est = None   # this buffer's, or none (a stale one would not match its blocks)
-        if before is not None and prompts.size:
-            # A legitimate signal within a chip pulls the spoofer's early-late balance: estimate it from this pass,
-            # take it out of the samples, and track the same samples again from the same loop state.
-            self._probes = self._probe(tracked, base_sample, blocks)
-            legit = self._legit_amplitudes(prompts / blocks[:, 1], self._probes[1])
+        self._legit_est = None   # this buffer's, or none (a stale one would not match its blocks)
+        paths = self._two_paths(tracked, base_sample, blocks) if before is not None and prompts.size else None
+        if paths is not None:
+            # the twin within a chip pulls the spoofer's early-late balance: take it out of a copy of the samples and
+            # track the same samples again from the same loop state
             without_legit = np.array(tracked, copy=True)
-            subtract_replicas(without_legit, base_sample, blocks, legit, self.channel.bank,
-                              offset_chips=self.legit_offset_chips)
+            subtract_replicas(without_legit, base_sample, blocks, self._legit_amplitudes(paths.twin_amplitudes),
+                              self.channel.bank, offset_chips=paths.twin_offset_chips)
             self.channel = before
             prompts, _ = self.channel.process(without_legit, base_sample)
             blocks = self.channel.last_blocks
-            # where the legitimate signal is, measured against the spoofer's unpulled replica
-            self._probes = self._probe(tracked, base_sample, blocks)
-            self._legit_est = self._legit_amplitudes(prompts / blocks[:, 1], self._probes[1], update=False)
+            # both delays again against the spoofer's unpulled replica: the twin's offset from the spoofer itself
+            paths = self._two_paths(tracked, base_sample, blocks)
+            if paths is not None:
+                self._legit_est = self._legit_amplitudes(paths.twin_amplitudes, update=False)
+                self._twin_lag = paths.twin_offset_chips
+                self.legit_offset_chips += TWIN_GAIN * (paths.separation_chips - self.legit_offset_chips)
         self._tracked = (first_ms, prompts, blocks)
 
-    def _legit_amplitudes(self, alphas: np.ndarray, beta: np.ndarray, update: bool = True) -> np.ndarray:
-        """The legitimate signal's amplitude per code period (in the spoofer's carrier frame) from the joint solve,
-        smoothed with its own data bits decided against a running reference."""
-        r = code_correlation(self.legit_offset_chips)
-        raw = (np.nan_to_num(beta) - r * alphas) / (1.0 - r * r)
+    def _two_paths(self, x: np.ndarray, base_sample: int, blocks: np.ndarray) -> TwoPaths | None:
+        lags = bank_lags(self.legit_offset_chips)
+        return fit_two_paths(self.prn, correlator_bank(x, base_sample, blocks, self.channel.bank, lags), lags,
+                             self.legit_offset_chips)
+
+    def _legit_amplitudes(self, raw: np.ndarray, update: bool = True) -> np.ndarray:
+        """The legitimate signal's amplitude per code period (in the spoofer's carrier frame), smoothed with its own
+        data bits decided against a running reference."""
+        raw = np.nan_to_num(raw)
         est = np.empty_like(raw)
         ref = self._legit_ref if self._legit_ref != 0 else (raw[0] if raw.size else 0j)
         for i, a in enumerate(raw):
@@ -231,22 +234,6 @@ class AdversaryTrack:
 
     def _joint(self) -> bool:
         return self.legit_offset_chips is not None and abs(self.legit_offset_chips) < JOINT_WITHIN_CHIPS
-
-    def _probe(self, x: np.ndarray, base_sample: int, blocks: np.ndarray) -> np.ndarray:
-        """Per code period, the correlations with the spoofer's replica moved to the legitimate signal's offset and
-        to either side of it (rows: offset - h, offset, offset + h)."""
-        return np.array([residuals(x, base_sample, blocks, self.channel.bank, self.legit_offset_chips + shift)[0]
-                         for shift in (-PROBE_HALF_SPACING_CHIPS, 0.0, PROBE_HALF_SPACING_CHIPS)])
-
-    def _follow_legit(self, probes: np.ndarray, est: np.ndarray) -> None:
-        """Move the legitimate signal's offset toward the early-late balance of the probes (the spoofer's own share
-        in each probe taken out first), non-coherently over the buffer."""
-        h, d = PROBE_HALF_SPACING_CHIPS, self.legit_offset_chips
-        ok = np.isfinite(probes).all(axis=0)
-        early = np.sum(np.abs(probes[0, ok] - code_correlation(d - h) * est[ok]) ** 2)
-        late = np.sum(np.abs(probes[2, ok] - code_correlation(d + h) * est[ok]) ** 2)
-        if early + late > 0:
-            self.legit_offset_chips = d + OFFSET_GAIN * (1.0 - h) / 2.0 * float((late - early) / (early + late))
 
     def apply(self, work: np.ndarray, base_sample: int) -> None:
         """The cancelling half: subtract what track() measured from `work`.
@@ -264,13 +251,10 @@ class AdversaryTrack:
             return
         i0 = int(np.argmax(settled))
         blocks, alphas = blocks[i0:], prompts[i0:] / blocks[i0:, 1]   # least squares: unit-modulus replica
-        probes = None if self._probes is None else self._probes[:, i0:]
         legit = None if self._legit_est is None else self._legit_est[i0:]
         if not self.settled:
             self._ref = alphas[0]
         est = self._smooth(alphas)
-        if probes is not None:
-            self._follow_legit(probes, est)
         if not self.settled:
             self.settled = True
             self._backfill(work, base_sample, blocks[0], est[0])
@@ -328,7 +312,7 @@ class AdversaryTrack:
         blocks, est = blocks[pick], est[pick]
         beta, power = residuals(work, base_sample, blocks, self.channel.bank)
         if legit is not None:   # a legitimate signal within a chip is seen at the replica too: not a residual
-            beta = beta - code_correlation(self.legit_offset_chips) * legit[pick]
+            beta = beta - code_correlation(self.prn, self._twin_lag) * legit[pick]
         ok = np.isfinite(power)
         self._acc_signal += float(np.sum(np.abs(est[ok]) ** 2))
         self._acc_residual += float(np.sum(np.abs(beta[ok]) ** 2))

@@ -1,0 +1,202 @@
+"""The canceller's two-path tracker: a bank of correlators around the spoofer's replica, and the maximum-likelihood
+delays of the spoofer and of its legitimate twin when the two lie within about a chip (one merged CAF peak or two
+touching ones), in the spirit of the multipath-estimating DLL.
+
+Per code period b the bank holds y_b[k] = <x, c(tau_s + lag_k)> / n, the correlations with the spoofer's replica
+moved by lag_k. Two paths at offsets u (the spoofer) and v (its twin) from that replica predict
+y_b = A(u, v) [a_b, l_b]^T with A's columns the PRN's code autocorrelation r(lag_k - u) and r(lag_k - v). The amplitudes
+(amplitude, carrier phase and data bit of each signal) are free per period, so the likelihood, maximised over them,
+depends on the buffer only through S = sum_b y_b y_b^H:
+
+    maximise  tr((A^T A)^-1 A^T Re(S) A)   over (u, v),     then [a_b, l_b]^T = (A^T A)^-1 A^T y_b.
+
+A grid search and a finer one around its best keep the cost independent of the number of periods; the bank's cost
+is one pass over the samples with every lag.
+"""
+
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from ..gps.codes import ca_code
+from ..receiver.correlator import LANE_GROUP, MAX_SUB_SAMPLES, CodeBank, fill_lanes, replica, sub_block_samples
+
+LAG_STEP_CHIPS = 0.1        # bank spacing: the triangles' kinks of two paths 0.2 chip apart fall between coarser lags
+LAG_MARGIN_CHIPS = 0.8      # the bank reaches this far beyond both paths
+SPOOFER_SPAN_CHIPS = 0.2    # the spoofer's replica is tracked: it is within this of the spoofer
+TWIN_SPAN_CHIPS = 0.4       # how far the twin's offset is searched around its last estimate
+COARSE_CHIPS = 0.01
+FINE_CHIPS = 0.002
+MIN_SEPARATION_CHIPS = 0.1  # closer than this the two columns of A are nearly the same: no fit
+
+
+def bank_lags(twin_offset_chips: float) -> np.ndarray:
+    """The lags covering the spoofer (0) and its twin, with a margin either side."""
+    lo = min(0.0, twin_offset_chips) - LAG_MARGIN_CHIPS
+    hi = max(0.0, twin_offset_chips) + LAG_MARGIN_CHIPS
+    n = int(np.ceil((hi - lo) / LAG_STEP_CHIPS)) + 1
+    return lo + LAG_STEP_CHIPS * np.arange(n)
+
+
+@njit(cache=True, nogil=True, fastmath=True)
+def _bank_kernel(x, base_sample, blocks, rows, first, bank_step, lags, lanes, wiped, out):
+    """out[m, k]: block m's correlation with the replica moved by lags[k], / samples; nan for a block not wholly in x.
+    The carrier is wiped once per sub-block, then each lag is one pass of multiply-adds over it."""
+    n_lags = lags.size
+    acc_re = np.empty(n_lags)
+    acc_im = np.empty(n_lags)
+    for m in range(blocks.shape[0]):
+        start = np.int64(blocks[m, 0]) - base_sample
+        n, cp, step = np.int64(blocks[m, 1]), blocks[m, 2], blocks[m, 3]
+        if start < 0 or start + n > x.size:
+            for k in range(n_lags):
+                out[m, k] = np.nan
+            continue
+        s_max = sub_block_samples(step, bank_step)
+        fill_lanes(lanes, blocks[m, 5], s_max, -1.0)
+        acc_re[:] = 0.0
+        acc_im[:] = 0.0
+        k0 = 0
+        while k0 < n:
+            s = min(s_max, n - k0)
+            rot = np.exp(-2j * np.pi * (blocks[m, 4] + k0 * blocks[m, 5]))
+            c0r, c0i = np.float32(rot.real), np.float32(rot.imag)
+            xs = x[start + k0:start + k0 + s]
+            for j in range(s):
+                v = xs[j]
+                ln = lanes[j]
+                cr = c0r * ln.real - c0i * ln.imag
+                ci = c0r * ln.imag + c0i * ln.real
+                wiped[j] = complex(v.real * cr - v.imag * ci, v.real * ci + v.imag * cr)
+            for k in range(n_lags):
+                code = replica(rows, first, bank_step, cp + lags[k], step, k0, s)
+                sr = si = np.float32(0.0)
+                for j in range(s):
+                    c = np.float32(code[j])
+                    sr += c * wiped[j].real
+                    si += c * wiped[j].imag
+                acc_re[k] += sr
+                acc_im[k] += si
+            k0 += s
+        for k in range(n_lags):
+            out[m, k] = complex(acc_re[k], acc_im[k]) / n
+
+
+def correlator_bank(x: np.ndarray, base_sample: int, blocks: np.ndarray, bank: CodeBank,
+                    lags: np.ndarray) -> np.ndarray:
+    """(blocks, lags): each code period's correlation with the spoofer's replica (tracking's blocks) moved by each
+    lag, divided by the period's samples: a signal of amplitude a at offset d gives about a r(lag - d)."""
+    out = np.empty((len(blocks), len(lags)), dtype=np.complex128)
+    lanes = np.empty(MAX_SUB_SAMPLES + LANE_GROUP, dtype=np.complex64)
+    wiped = np.empty(MAX_SUB_SAMPLES, dtype=np.complex64)
+    _bank_kernel(x, base_sample, blocks, bank.rows, bank.first, bank.step_chips, np.asarray(lags, dtype=np.float64),
+                 lanes, wiped, out)
+    return out
+
+
+def correlator_bank_reference(x: np.ndarray, base_sample: int, blocks, prn: int, lags) -> np.ndarray:
+    """The same with numpy, the exact code phase and an exact exponential (slow; for tests)."""
+    code = ca_code(prn).astype(np.float64)
+    out = np.full((len(blocks), len(lags)), np.nan, dtype=np.complex128)
+    for m, (first, n, cp, step, ph, pstep) in enumerate(blocks):
+        start, k = int(first) - base_sample, np.arange(int(n))
+        if start < 0 or start + int(n) > x.size:
+            continue
+        wiped = x[start:start + int(n)] * np.exp(-2j * np.pi * (ph + k * pstep))
+        for i, lag in enumerate(lags):
+            out[m, i] = np.sum(wiped * code[np.floor(cp + lag + k * step).astype(np.int64) % 1023]) / n
+    return out
+
+
+AUTOCORRELATION_REACH_CHIPS = 4
+
+
+@functools.lru_cache(maxsize=64)
+def _integer_autocorrelation(prn: int) -> np.ndarray:
+    """R(k) for k = -REACH..REACH chips: the code's circular autocorrelation / 1023. At +/-1 chip it is one of
+    -1, -65 or +63 / 1023 depending on the PRN: a plain triangle would bias a two-path fit by ~0.05 chip."""
+    code = ca_code(prn).astype(np.float64)
+    ks = np.arange(-AUTOCORRELATION_REACH_CHIPS, AUTOCORRELATION_REACH_CHIPS + 1)
+    return np.array([np.dot(code, np.roll(code, k)) / code.size for k in ks])
+
+
+def code_correlation(prn: int, offset_chips):
+    """The code's normalised correlation with itself moved by offset_chips (rectangular chips: linear between whole
+    chips); zero beyond AUTOCORRELATION_REACH_CHIPS, where only the code's sidelobes are."""
+    ks = np.arange(-AUTOCORRELATION_REACH_CHIPS, AUTOCORRELATION_REACH_CHIPS + 1)
+    return np.interp(offset_chips, ks, _integer_autocorrelation(prn), left=0.0, right=0.0)
+
+
+@dataclass(frozen=True)
+class TwoPaths:
+    spoofer_offset_chips: float      # u: the spoofer, from the replica the bank was built on
+    twin_offset_chips: float         # v: its legitimate twin, from the same replica
+    spoofer_amplitudes: np.ndarray   # a_b per code period (complex, in the replica's carrier frame)
+    twin_amplitudes: np.ndarray      # l_b per code period
+
+    @property
+    def separation_chips(self) -> float:
+        """The twin's offset from the spoofer itself (v - u)."""
+        return self.twin_offset_chips - self.spoofer_offset_chips
+
+
+def _explained(prn, us, vs, lags, s_re, side):
+    """tr((A^T A)^-1 A^T Re(S) A) for every (u, v) on a grid; -inf where the twin is not on its side of the spoofer
+    by MIN_SEPARATION_CHIPS (too close to fit, or crossed over)."""
+    au, av = code_correlation(prn, lags[None, :] - us[:, None]), code_correlation(prn, lags[None, :] - vs[:, None])
+    h_uu = np.einsum("ik,kl,il->i", au, s_re, au)
+    h_vv = np.einsum("jk,kl,jl->j", av, s_re, av)
+    h_uv = au @ s_re @ av.T
+    g_uu, g_vv, g_uv = np.sum(au * au, axis=1), np.sum(av * av, axis=1), au @ av.T
+    det = g_uu[:, None] * g_vv[None, :] - g_uv ** 2
+    spaced = side * (vs[None, :] - us[:, None]) >= MIN_SEPARATION_CHIPS
+    with np.errstate(divide="ignore", invalid="ignore"):
+        e = (g_vv[None, :] * h_uu[:, None] + g_uu[:, None] * h_vv[None, :] - 2 * g_uv * h_uv) / det
+    return np.where(spaced & (det > 1e-9), e, -np.inf)
+
+
+def _best(prn, us, vs, lags, s_re, side):
+    e = _explained(prn, us, vs, lags, s_re, side)
+    i, j = np.unravel_index(int(np.argmax(e)), e.shape)
+    return float(us[i]), float(vs[j])
+
+
+def fit_two_paths(prn: int, y: np.ndarray, lags: np.ndarray, twin_guess_chips: float) -> TwoPaths | None:
+    """The ML offsets of the spoofer (near 0) and its twin (near twin_guess_chips, on the same side of the spoofer)
+    from a bank's correlations y (periods, lags); None without a finite period or when the twin's side cannot hold
+    a fit."""
+    ok = np.isfinite(y).all(axis=1)
+    if not ok.any():
+        return None
+    yy = y[ok]
+    s_re = np.real(yy.T @ yy.conj())
+    side = 1.0 if twin_guess_chips >= 0 else -1.0
+    us = np.arange(-SPOOFER_SPAN_CHIPS, SPOOFER_SPAN_CHIPS + 1e-9, COARSE_CHIPS)
+    vs = twin_guess_chips + np.arange(-TWIN_SPAN_CHIPS, TWIN_SPAN_CHIPS + 1e-9, COARSE_CHIPS)
+    u, v = _best(prn, us, vs, lags, s_re, side)
+    if not np.isfinite(_explained(prn, np.array([u]), np.array([v]), lags, s_re, side)[0, 0]):
+        return None                                     # no pair on the twin's side: never across the spoofer
+    fine = np.arange(-COARSE_CHIPS, COARSE_CHIPS + 1e-9, FINE_CHIPS)
+    u, v = _best(prn, u + fine, v + fine, lags, s_re, side)
+    a = np.column_stack([code_correlation(prn, lags - u), code_correlation(prn, lags - v)])
+    amps = np.full((len(y), 2), np.nan + 0j)
+    amps[ok] = np.linalg.solve(a.T @ a, a.T @ yy.T).T
+    return TwoPaths(u, v, amps[:, 0], amps[:, 1])
+
+
+def fit_two_paths_reference(prn: int, y: np.ndarray, lags: np.ndarray, us: np.ndarray, vs: np.ndarray,
+                            side: float) -> tuple[float, float]:
+    """The least-squares (u, v) by brute force: every pair, every period's amplitudes by lstsq (slow; for tests)."""
+    best, arg = np.inf, (np.nan, np.nan)
+    for u in us:
+        for v in vs:
+            if side * (v - u) < MIN_SEPARATION_CHIPS:
+                continue
+            a = np.column_stack([code_correlation(prn, lags - u), code_correlation(prn, lags - v)]).astype(np.complex128)
+            coef = np.linalg.lstsq(a, y.T, rcond=None)[0]
+            cost = float(np.sum(np.abs(y.T - a @ coef) ** 2))
+            if cost < best:
+                best, arg = cost, (float(u), float(v))
+    return arg
