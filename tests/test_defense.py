@@ -36,11 +36,13 @@ def simulate(path, *sets, duration, fmt="ishort"):
 
 def examine_stream(path, prns, duration, every_s=0.5):
     """Run the detector the way the receiver does, every every_s; returns [(t_s, alarm)]."""
+    from semperfi.defense.guard import EXAMINE_NONCOHERENT, WINDOW_MS
     reader, det, out = open_iq(path), SpoofingDetector(FS), []
-    for t in np.arange(0.0, duration - 0.03, every_s):
-        x = reader.read(int(t * FS), int(0.02 * FS))
-        cafs = acquire(x[: int(0.01 * FS)], FS, prns, DopplerGrid(max_hz=6000, step_hz=333), coherent_ms=2, noncoherent=5)
-        out += [(t, a) for a in det.examine(cafs, t, x)]
+    for t in np.arange(0.0, duration - 0.05, every_s):
+        x = reader.read(int(t * FS), int(WINDOW_MS * 1e-3 * FS))
+        cafs = acquire(x[: int(2 * EXAMINE_NONCOHERENT * 1e-3 * FS)], FS, prns, DopplerGrid(max_hz=6000, step_hz=333),
+                       coherent_ms=2, noncoherent=EXAMINE_NONCOHERENT)
+        out += [(t, a) for a in det.examine(cafs, t, x[: x.size // 2])]
     return out
 
 

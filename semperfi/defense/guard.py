@@ -13,8 +13,13 @@ from .canceller import Canceller, CancellerConfig, caf_amplitude, refine_peak
 from .detector import Alarm, DetectorConfig, SpoofingDetector, auxiliary_peaks, chips_apart, examinable
 from .policy import POWER_MARGIN_DB, Choice, by_power, choose, parse_policy
 
-WINDOW_MS = 40     # samples kept for examinations: acquisition looks at the first 10 ms, the two-path test at the
-                   # first 20 (all 40 once the attack is known: the highest sensitivity)
+WINDOW_MS = 40     # samples kept for examinations: acquisition looks at all 40 ms, the two-path test at the first 20
+                   # (all 40 once the attack is known: the highest sensitivity)
+# 2 ms x 20 non-coherent: a strong attacker's signals on a dozen PRNs (+10 dB: more power than the noise in the band)
+# raise the floor every correlation sees by ~4 dB, and a 45 dB-Hz legitimate twin, 10 dB under its spoofer, stands at
+# 1.5-4 detection thresholds in 10 ms (under the examinable 3 on most PRNs: no alarm at all in a GPS-SDR-SIM
+# recording) and at 3-7 in 40 ms
+EXAMINE_NONCOHERENT = 20
 EXAMINE_MAX_PEAKS = 16  # a strong spoofer's Doppler and code sidelobes are local maxima too: room for its twin
 
 
@@ -100,13 +105,12 @@ class SpoofGuard:
         self._cleaned += cleaned.size
         return cleaned
 
-    def _acquire(self, window: np.ndarray, prns, center_hz: float, span_hz: float, noncoherent: int = 5):
-        """Every examination's search: the window's first 2 ms x noncoherent (10 ms; 20 ms once the attack is known,
-        so that a twin 10 dB under a strong spoofer stands steadily above the examination's floor), 333 Hz bins."""
+    def _acquire(self, window: np.ndarray, prns, center_hz: float, span_hz: float):
+        """Every examination's search: the window's 2 ms x EXAMINE_NONCOHERENT, 333 Hz bins."""
         a = self.cfg["acquisition"]
-        n = int(round(self.fs_hz * 1e-3)) * 2 * noncoherent
+        n = int(round(self.fs_hz * 1e-3)) * 2 * EXAMINE_NONCOHERENT
         return acquire(window[:n], self.fs_hz, prns, DopplerGrid(center_hz, span_hz, 333.0),
-                       self.if_hz, 2, noncoherent, a["pfa"], max(EXAMINE_MAX_PEAKS, a["max_peaks"]))
+                       self.if_hz, 2, EXAMINE_NONCOHERENT, a["pfa"], max(EXAMINE_MAX_PEAKS, a["max_peaks"]))
 
     def _examine(self) -> None:
         t_s = (self._seen - self.window) / self.fs_hz
@@ -114,8 +118,7 @@ class SpoofGuard:
         prns = list(range(1, 33)) if full else sorted(self._present | self.extra_prns)
         if full:
             self._next_full = self._seen + int(self.d["full_search_every_s"] * self.fs_hz)
-        cafs = self._acquire(self._raw, prns, 0.0, self.cfg["acquisition"]["doppler_max_hz"],
-                             10 if self.detector.sensitive else 5)
+        cafs = self._acquire(self._raw, prns, 0.0, self.cfg["acquisition"]["doppler_max_hz"])
         # a strong attacker's cross-talk puts peaks on absent PRNs: examining them every look would cost the most
         self._present |= {p for p, c in cafs.items() if examinable(c.best, c, cafs, self.detector.cfg, self.fs_hz)}
         self._last_cafs.update(cafs)
