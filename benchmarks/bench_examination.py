@@ -2,8 +2,8 @@
 
     .venv/bin/python benchmarks/bench_examination.py [--fs 4e6] [--duration 30] [--repeat 2]
 
-Every tracked PRN is re-acquired and put to the two-path test every second (twice a second, over twice the samples,
-once an attack is known). Measured on a recording with no attacker (the cost paid all the time) and with a
+Every tracked PRN is re-acquired over 40 ms and put to the two-path test every second (twice a second, the two-path
+test over twice the samples, once an attack is known). Measured on a recording with no attacker (the cost paid all the time) and with a
 synchronized attacker 1 km east at +6 dB (examination at the highest sensitivity, plus cancellation). Wall time and
 CPU time of the whole run, best of --repeat, and the real-time factor (seconds of signal per second of wall time).
 """
