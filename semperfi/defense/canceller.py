@@ -146,6 +146,18 @@ def refine_peak(samples: np.ndarray, fs_hz: float, if_hz: float, peak: Peak) -> 
     return near[0] if near else peak
 
 
+def decision_smooth(values: np.ndarray, ref: complex, lam: float) -> tuple[np.ndarray, complex]:
+    """Decision-directed smoothing of per-period complex amplitudes: each period's data bit is its sign against the
+    running reference, which follows the bit-stripped values with gain lam. Returns the estimates (bits restored) and
+    the reference after the last period."""
+    est = np.empty_like(values)
+    for i, a in enumerate(values):
+        bit = 1.0 if (a * np.conj(ref)).real >= 0 else -1.0
+        ref = ref + lam * (a * bit - ref)
+        est[i] = ref * bit
+    return est, ref
+
+
 # A legitimate peak closer than this to the spoofer's leaks into the spoofer's amplitude estimate (the code
 # autocorrelation at their offset): both signals are then followed jointly by the two-path tracker.
 JOINT_WITHIN_CHIPS = 1.2
@@ -222,12 +234,8 @@ class AdversaryTrack:
         """The legitimate signal's amplitude per code period (in the spoofer's carrier frame), smoothed with its own
         data bits decided against a running reference."""
         raw = np.nan_to_num(raw)
-        est = np.empty_like(raw)
         ref = self._legit_ref if self._legit_ref != 0 else (raw[0] if raw.size else 0j)
-        for i, a in enumerate(raw):
-            bit = 1.0 if (a * np.conj(ref)).real >= 0 else -1.0
-            ref = ref + self._lam * (a * bit - ref)
-            est[i] = ref * bit
+        est, ref = decision_smooth(raw, ref, self._lam)
         if update:
             self._legit_ref = ref
         return est
@@ -254,24 +262,13 @@ class AdversaryTrack:
         legit = None if self._legit_est is None else self._legit_est[i0:]
         if not self.settled:
             self._ref = alphas[0]
-        est = self._smooth(alphas)
+        est, self._ref = decision_smooth(alphas, self._ref, self._lam)
         if not self.settled:
             self.settled = True
             self._backfill(work, base_sample, blocks[0], est[0])
             self.hold_from = None
         subtract_replicas(work, base_sample, blocks, est, self.channel.bank, self.cfg.real_samples)
         self._measure(work, base_sample, blocks, est, legit)
-
-    def _smooth(self, alphas: np.ndarray, ref: complex | None = None) -> np.ndarray:
-        """Decision-directed smoothing: each period's bit is its sign against the running reference."""
-        est = np.empty_like(alphas)
-        ref = self._ref if ref is None else ref
-        for i, a in enumerate(alphas):
-            bit = 1.0 if (a * np.conj(ref)).real >= 0 else -1.0
-            ref = ref + self._lam * (a * bit - ref)
-            est[i] = ref * bit
-        self._ref = ref
-        return est
 
     def _backfill(self, work: np.ndarray, base_sample: int, settled_block: np.ndarray, settled_est: complex) -> None:
         """Cancel the held samples [hold_from, first settled block) with the settled replica run backwards."""
@@ -293,10 +290,8 @@ class AdversaryTrack:
         blocks = np.array(blocks)
         beta, power = residuals(work, base_sample, blocks, self.channel.bank)
         ok = np.isfinite(power)
-        saved = self._ref
-        bit = 1.0 if (settled_est * np.conj(saved)).real >= 0 else -1.0
-        est = self._smooth(beta[ok], ref=settled_est * bit)
-        self._ref = saved
+        bit = 1.0 if (settled_est * np.conj(self._ref)).real >= 0 else -1.0
+        est, _ = decision_smooth(beta[ok], settled_est * bit, self._lam)   # the running reference stays as it is
         subtract_replicas(work, base_sample, blocks[ok], est, self.channel.bank, self.cfg.real_samples)
 
     def _measure(self, work, base_sample, blocks, est, legit=None) -> None:

@@ -21,7 +21,7 @@ import numpy as np
 from numba import njit
 
 from ..gps.codes import ca_code
-from ..receiver.correlator import LANE_GROUP, MAX_SUB_SAMPLES, CodeBank, fill_lanes, replica, sub_block_samples
+from ..receiver.correlator import MAX_SUB_SAMPLES, CodeBank, fill_lanes, lane_buffer, replica, sub_block_samples
 
 LAG_STEP_CHIPS = 0.1        # bank spacing: the triangles' kinks of two paths 0.2 chip apart fall between coarser lags
 LAG_MARGIN_CHIPS = 0.8      # the bank reaches this far beyond both paths
@@ -89,10 +89,9 @@ def correlator_bank(x: np.ndarray, base_sample: int, blocks: np.ndarray, bank: C
     """(blocks, lags): each code period's correlation with the spoofer's replica (tracking's blocks) moved by each
     lag, divided by the period's samples: a signal of amplitude a at offset d gives about a r(lag - d)."""
     out = np.empty((len(blocks), len(lags)), dtype=np.complex128)
-    lanes = np.empty(MAX_SUB_SAMPLES + LANE_GROUP, dtype=np.complex64)
     wiped = np.empty(MAX_SUB_SAMPLES, dtype=np.complex64)
     _bank_kernel(x, base_sample, blocks, bank.rows, bank.first, bank.step_chips, np.asarray(lags, dtype=np.float64),
-                 lanes, wiped, out)
+                 lane_buffer(), wiped, out)
     return out
 
 
@@ -158,9 +157,10 @@ def _explained(prn, us, vs, lags, s_re, side):
 
 
 def _best(prn, us, vs, lags, s_re, side):
+    """The grid's best (u, v), and whether any pair on it could be fitted at all."""
     e = _explained(prn, us, vs, lags, s_re, side)
     i, j = np.unravel_index(int(np.argmax(e)), e.shape)
-    return float(us[i]), float(vs[j])
+    return float(us[i]), float(vs[j]), bool(np.isfinite(e[i, j]))
 
 
 def fit_two_paths(prn: int, y: np.ndarray, lags: np.ndarray, twin_guess_chips: float) -> TwoPaths | None:
@@ -175,11 +175,11 @@ def fit_two_paths(prn: int, y: np.ndarray, lags: np.ndarray, twin_guess_chips: f
     side = 1.0 if twin_guess_chips >= 0 else -1.0
     us = np.arange(-SPOOFER_SPAN_CHIPS, SPOOFER_SPAN_CHIPS + 1e-9, COARSE_CHIPS)
     vs = twin_guess_chips + np.arange(-TWIN_SPAN_CHIPS, TWIN_SPAN_CHIPS + 1e-9, COARSE_CHIPS)
-    u, v = _best(prn, us, vs, lags, s_re, side)
-    if not np.isfinite(_explained(prn, np.array([u]), np.array([v]), lags, s_re, side)[0, 0]):
+    u, v, fitted = _best(prn, us, vs, lags, s_re, side)
+    if not fitted:
         return None                                     # no pair on the twin's side: never across the spoofer
     fine = np.arange(-COARSE_CHIPS, COARSE_CHIPS + 1e-9, FINE_CHIPS)
-    u, v = _best(prn, u + fine, v + fine, lags, s_re, side)
+    u, v, _ = _best(prn, u + fine, v + fine, lags, s_re, side)
     a = np.column_stack([code_correlation(prn, lags - u), code_correlation(prn, lags - v)])
     amps = np.full((len(y), 2), np.nan + 0j)
     amps[ok] = np.linalg.solve(a.T @ a, a.T @ yy.T).T

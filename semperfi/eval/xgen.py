@@ -229,10 +229,13 @@ def plugin_case(case: Case, nav_path: str | Path, work: Path, timeout_s: float =
                              trop_model="OFF")
     finally:
         cleaned.unlink(missing_ok=True)
+        sidecar_path(cleaned).unlink(missing_ok=True)
     out = {"case": case.tag, "receiver": "gnss-sdr on semperfi clean", "cancelled": list(summary.cancelled),
            "fixes": len(fixes)}
     if fixes:
         err = horizontal_errors_m(fixes, case.place.lat_deg, case.place.lon_deg)
-        out.update(last_mean_m=round(float(np.mean(err[-100:])), 2), mean_m=round(float(np.mean(err)), 2),
+        t_s = np.array([f.t_sod_s for f in fixes])
+        last = t_s >= t_s[-1] - 10.0
+        out.update(last_mean_m=round(float(np.mean(err[last])), 2), mean_m=round(float(np.mean(err)), 2),
                    max_m=round(float(np.max(err)), 1))
     return out
