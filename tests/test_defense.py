@@ -431,3 +431,48 @@ def test_defense_options_are_checked(tmp_path):
     r = subprocess.run([sys.executable, "-m", "semperfi.cli", "clean", str(tmp_path / "s.bin"), "-o",
                         str(tmp_path / "s.bin")], capture_output=True, text=True, timeout=300)
     assert r.returncode != 0 and "overwrite" in r.stderr
+
+
+def test_signals_stronger_than_any_satellites_are_the_attackers():
+    """The C/N0s measured against the floor all signals raise, inverted to the thermal floor: a dozen legitimate
+    signals at 45 dB-Hz stay plausible; a strong attacker's saturate the measured C/N0 near 50 dB-Hz, and its
+    signals are flagged while a legitimate one measured against the same raised floor (36 dB-Hz) is not."""
+    from semperfi.defense.power import implausible_peaks, thermal_cn0_dbhz
+    from semperfi.receiver.acquisition import Peak
+    legit = thermal_cn0_dbhz({p: 44.5 for p in range(1, 13)})
+    assert all(44.5 < v < 46.5 for v in legit.values()), legit
+    peaks = {p: Peak(p, 0.0, 0.0, 100.0, 50.0) for p in range(1, 12)} | {12: Peak(12, 0.0, 0.0, 5.0, 36.0)}
+    flagged = implausible_peaks(peaks)
+    assert set(flagged) == set(range(1, 12)) and min(flagged.values()) > 58.0, flagged
+    assert not implausible_peaks({p: Peak(p, 0.0, 0.0, 100.0, 50.0) for p in range(1, 4)})   # too few to move a fix
+
+
+def test_two_carriers_under_one_peak_beat_and_one_does_not():
+    from semperfi.defense.beat import two_carriers
+    rng = np.random.default_rng(5)
+    t = np.arange(2000) * 1e-3
+    noise = 0.1 * (rng.standard_normal(t.size) + 1j * rng.standard_normal(t.size))
+    bits = np.repeat(rng.choice([-1.0, 1.0], t.size // 20), 20)
+    one = bits * (1.0 + noise)
+    assert two_carriers(one) is None
+    assert two_carriers(one * (1 + 0.3 * np.exp(2j * np.pi * 0.5 * t))) is None     # a static antenna's slow fringe
+    two = bits * (1.0 + 0.7 * np.exp(2j * np.pi * -23.0 * t)) + noise
+    assert abs(two_carriers(two) - 23.0) <= 2.0
+
+
+def test_an_attacker_far_stronger_than_any_satellite_is_alarmed_at_once_and_recovered(tmp_path, brdc_path):
+    """+20 dB, synchronized, 1 km east, from the first sample: the legitimate twins are buried in the attacker's
+    multiple-access interference and no second peak shows; the attacker's power names its peaks (not a guess)."""
+    duration = 18.0
+    simulate(tmp_path / "a.bin", f'constellation.rinex="{brdc_path}"', 'time.start="2022-01-01T00:00:27"',
+             "constellation.max_satellites=8", "attacker.enabled=true", "attacker.offset_east_m=1000.0",
+             "attacker.power_advantage_db=20.0", duration=duration)
+    summary, fixes, events, _ = _run_defended(tmp_path / "a.bin", tmp_path / "out", nav=str(brdc_path))
+    power = [e for e in events if e["event"] == "spoofing_alarm" and e.get("found_by") == "power"]
+    assert len(power) >= 4 and max(e["t_rx_s"] for e in power) < 1.0, power
+    assert not any(e["guessed"] for e in events if e["event"] == "cancellation_start")
+    called_good = [(f["t_rx_s"], round(_horizontal_m(f), 1)) for f in fixes
+                   if f["state"] in ("nominal", "recovered") and _horizontal_m(f) > 10.0]
+    assert not called_good, called_good[:5]
+    last = [_horizontal_m(f) for f in fixes if float(f["t_rx_s"]) > duration - 5.0]
+    assert last and np.mean(last) < 5.0 and fixes[-1]["state"] == "recovered", (np.mean(last), fixes[-1]["state"])

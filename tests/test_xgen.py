@@ -1,6 +1,8 @@
 """The defence on a recording from a generator nobody here wrote: GPS-SDR-SIM's legitimate and spoofer scenes on the
 same GPS time (a synchronized attacker), mixed with our own calibrated noise. Runs when gps-sdr-sim is on PATH."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -61,3 +63,29 @@ def test_a_weaker_attacker_from_another_generator_is_identified_by_the_maneuver(
     assert r["called_good_but_wrong"] == 0, r
     assert r["recovered"] > 0 and r["last_state"] == "recovered", r
     assert r["last_mean_m"] < 5.0, r
+
+
+def test_a_far_stronger_attacker_from_another_generator_is_recovered(tmp_path, brdc_path):
+    """+20 dB, synchronized, 1 km east, on from the first sample: alarmed by its power, cancelled on every PRN, the
+    legitimate twins found in the cleaned samples."""
+    r = run_case(Case(PLACES["boston"], 1000.0, 20.0, duration_s=24.0), brdc_path, tmp_path)
+    print(r)
+    assert r["called_good_but_wrong"] == 0, r
+    assert r["last_state"] == "recovered" and r["last_mean_m"] < 5.0, r
+
+
+def test_a_seamless_takeover_from_another_generator_is_alarmed_before_the_drag_and_never_called_good(tmp_path,
+                                                                                                      brdc_path):
+    """GPS-SDR-SIM renders the spoofer along a trajectory that holds the receiver's own position for 8 s (the two
+    scenes are sample-identical), then moves east at 8 m/s; +3 dB. The alarm comes from the two carriers beating
+    under the tracked peaks, within a second of the spoofer moving off; no fix dragged more than 10 m is good."""
+    from semperfi.eval.xgen import takeover_motion
+    place = PLACES["boston"]
+    motion = takeover_motion(place, 8.0, 8.0, 30.0, tmp_path / "takeover.csv")
+    case = Case(place, 0.0, 3.0, duration_s=30.0, spoof_motion=str(motion))
+    r = run_case(case, brdc_path, tmp_path)
+    print(r)
+    events = [json.loads(line) for line in open(tmp_path / f"{case.tag}-full" / "events.jsonl")]
+    first = min(e["t_rx_s"] for e in events if e["event"] == "spoofing_alarm")
+    assert 8.0 < first < 9.0, first
+    assert r["called_good_but_wrong"] == 0, r

@@ -11,11 +11,13 @@ from ..receiver.chain import Receiver
 from ..receiver.integrity import trusted
 from ..receiver.types import Fix
 from .detector import chips_apart
+from .beat import WINDOW_MS as BEAT_WINDOW_MS, two_carriers
 from .guard import SpoofGuard
 from .maneuver_id import LinkedManeuver, ManeuverIdentifier
 
 
 MAX_RECOVERED_RESIDUAL_M = 30.0
+BEAT_CHECK_S = 0.25
 
 
 class DefendedReceiver:
@@ -33,6 +35,7 @@ class DefendedReceiver:
         self.inner = Receiver(cfg, fs_hz, if_hz, assisted, on_fix=self._label, events=events, week_hint=week_hint,
                               on_observations=on_observations)
         self.first_recovered_t_s: float | None = None
+        self._next_beat_check = 0
 
     @property
     def stats(self):
@@ -55,6 +58,22 @@ class DefendedReceiver:
             # once the attack is known, fixes are built from resolved PRNs only, while enough of them remain
             self.inner.excluded_prns = {p for p in self.inner.channels if not self.guard.resolved(p)}
         self.inner.feed(cleaned)
+        if self.guard.d["mode"] != "off" and self.inner.stats.samples >= self._next_beat_check:
+            self._next_beat_check = self.inner.stats.samples + int(BEAT_CHECK_S * self.inner.fs_hz)
+            self._check_beats()
+
+    def _check_beats(self) -> None:
+        """Two carriers under a tracked peak (beat), on two PRNs or more (one, once the attack is known): a spoofer
+        parting from the legitimate signals it was aligned with."""
+        beats = {}
+        for prn, ch in self.inner.channels.items():
+            if ch.pull_in or ch.ms < ch.cfg.pull_in_ms + BEAT_WINDOW_MS:
+                continue
+            f_hz = two_carriers(ch.prompt[np.arange(ch.ms - BEAT_WINDOW_MS, ch.ms) % ch.HISTORY_MS])
+            if f_hz is not None:
+                beats[prn] = f_hz
+        if len(beats) >= (1 if self.guard.alarm_t_s is not None else 2):
+            self.guard.beat_alarm(beats, self.inner.stats.samples / self.inner.fs_hz)
 
     def finish(self) -> None:
         self.inner.feed(self.guard.flush())

@@ -138,6 +138,10 @@ def hidden_pair(samples: np.ndarray, fs_hz: float, if_hz: float, main: Peak, cfg
 
 NEWCOMER_AFTER_S = 5.0
 NEWCOMER_MAX_WEAKER_DB = 6.0   # a newcomer further below the incumbent is as likely a legitimate signal surfacing
+# A peak first seen this close to the incumbent may have emerged from under it: in a seamless takeover the spoofer
+# starts aligned with the legitimate signal, the receiver's lock follows the stronger of the two as they part, and
+# the peak left behind -- the "newcomer" -- is the legitimate one.
+NEWCOMER_MIN_GAP_CHIPS = 1.5
 
 
 @dataclass
@@ -147,6 +151,7 @@ class _Track:
     t_s: float
     first_seen_s: float
     looks: int = 0
+    first_gap_chips: float = float("inf")   # how far from the PRN's other peak it was when first seen
 
 
 @dataclass
@@ -185,7 +190,9 @@ class SpoofingDetector:
                     best = tr
                     break
             if best is None:
-                best = _Track(p.code_phase_chips, p.doppler_hz, t_s, t_s)
+                gap = min((chips_apart(p.code_phase_chips, q.code_phase_chips) for q in peaks if q is not p),
+                          default=float("inf"))
+                best = _Track(p.code_phase_chips, p.doppler_hz, t_s, t_s, first_gap_chips=gap)
                 known.append(best)
             best.code_phase_chips, best.doppler_hz, best.t_s = p.code_phase_chips, p.doppler_hz, t_s
             best.looks += 1
@@ -206,6 +213,12 @@ class SpoofingDetector:
     def sensitive(self) -> bool:
         """The attack is known to be present: every PRN is examined at the highest sensitivity."""
         return self.first_alarm_s is not None
+
+    def raise_alarm(self, prn: int, t_s: float) -> None:
+        """A PRN alarmed by another test (the attacker's power): not examined for pairs while under cancellation."""
+        self.alarmed.add(prn)
+        if self.first_alarm_s is None:
+            self.first_alarm_s = t_s
 
     def examine(self, cafs: dict[int, Caf], t_s: float, samples: np.ndarray | None = None) -> list[Alarm]:
         """One acquisition's verdict: alarms for PRNs whose pair has now been seen cfg.confirmations times.
@@ -240,7 +253,6 @@ class SpoofingDetector:
                 self.close.pop(prn, None)
             self.streak[prn] = self.streak.get(prn, 0) + 1
             if self.streak[prn] >= self.cfg.confirmations and prn not in self.alarmed:
-                self.alarmed.add(prn)
                 older = min(tracks, key=lambda tr: tr.first_seen_s)
                 newer = max(tracks, key=lambda tr: tr.first_seen_s)
                 # A newcomer only when the other peak had been there alone for a while (NEWCOMER_AFTER_S, three
@@ -249,7 +261,8 @@ class SpoofingDetector:
                 # And only when the attack began after that: once any PRN has raised the alarm near the start, a
                 # peak found later is more likely a legitimate signal surfacing than a new spoofer.
                 first_alarm = self.first_alarm_s if self.first_alarm_s is not None else t_s
-                settled = (first_alarm - older.first_seen_s >= NEWCOMER_AFTER_S and older.looks - newer.looks >= 3)
+                settled = (first_alarm - older.first_seen_s >= NEWCOMER_AFTER_S and older.looks - newer.looks >= 3
+                           and newer.first_gap_chips >= NEWCOMER_MIN_GAP_CHIPS)
                 # And not when the newcomer is far weaker than the incumbent: a legitimate signal surfacing from under
                 # a strong spoofer that was there from power-on looks exactly like that (seen on GPS-SDR-SIM: +10 dB
                 # from the first sample, the legitimate twins found 7 s later, cancelled as newcomers).
@@ -259,6 +272,5 @@ class SpoofingDetector:
                 weaker_db = 10 * np.log10(max(old_peak.metric, 1e-9) / max(new_peak.metric, 1e-9))
                 newcomer = newer.code_phase_chips if settled and weaker_db <= NEWCOMER_MAX_WEAKER_DB else None
                 alarms.append(Alarm(t_s, prn, pairs[0], newcomer))
-                if self.first_alarm_s is None:
-                    self.first_alarm_s = t_s
+                self.raise_alarm(prn, t_s)
         return alarms

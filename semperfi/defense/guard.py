@@ -8,9 +8,11 @@ Used in front of the receiver chain (DefendedReceiver) and on its own as the plu
 
 import numpy as np
 
+from ..gps.constants import CA_CODE_LENGTH_CHIPS
 from ..receiver.acquisition import DopplerGrid, acquire
-from .canceller import Canceller, CancellerConfig, caf_amplitude, refine_peak
+from .canceller import JOINT_WITHIN_CHIPS, Canceller, CancellerConfig, caf_amplitude, refine_peak
 from .detector import Alarm, DetectorConfig, SpoofingDetector, auxiliary_peaks, chips_apart, examinable
+from .power import implausible_peaks
 from .policy import POWER_MARGIN_DB, Choice, by_power, choose, parse_policy
 
 WINDOW_MS = 40     # samples kept for examinations: acquisition looks at all 40 ms, the two-path test at the first 20
@@ -20,6 +22,9 @@ WINDOW_MS = 40     # samples kept for examinations: acquisition looks at all 40 
 # 1.5-4 detection thresholds in 10 ms (under the examinable 3 on most PRNs: no alarm at all in a GPS-SDR-SIM
 # recording) and at 3-7 in 40 ms
 EXAMINE_NONCOHERENT = 20
+# a peak this far from a cancelled spoofer's code phase, or further, is not its residual (the acquisition's code phase
+# is good to a few hundredths of a chip on a dominant peak)
+TWIN_MIN_CHIPS = 0.15
 EXAMINE_MAX_PEAKS = 16  # a strong spoofer's Doppler and code sidelobes are local maxima too: room for its twin
 
 
@@ -61,9 +66,14 @@ class SpoofGuard:
         self.attacker_stronger: bool | None = None       # what the maneuver showed of the attacker's power, if clear
         self.maneuver_legit: set[int] = set()            # PRNs whose only peak the maneuver showed to follow the motion
         self._inference = ""
+        # a spoofer was seen parting from signals it had been aligned with: a PRN's lone peak that predates the
+        # attack may still be the two merged
+        self.takeover = False
         self._startup_samples = int(self.d["startup_s"] * fs_hz)
         self._held: list[np.ndarray] = []
         self._last_cafs: dict = {}
+        self._last_look_first = -1
+        self._looked: tuple[np.ndarray, int] | None = None   # the window the latest examination searched
 
     def _emit(self, kind: str, t_s: float, **fields) -> None:
         if self.events is not None:
@@ -112,26 +122,77 @@ class SpoofGuard:
         return acquire(window[:n], self.fs_hz, prns, DopplerGrid(center_hz, span_hz, 333.0),
                        self.if_hz, 2, EXAMINE_NONCOHERENT, a["pfa"], max(EXAMINE_MAX_PEAKS, a["max_peaks"]))
 
+    def _look(self) -> tuple[np.ndarray, int]:
+        """The window an examination searches, and its first sample's absolute index. Once spoofed signals are
+        being cancelled, the cleaned one: a strong attacker's signals on a dozen PRNs raise the floor every
+        correlation sees (their multiple-access interference: at +15 dB, a 45 dB-Hz legitimate twin looks like
+        36 dB-Hz, and their cross-correlations make peaks as strong as it); cancelling them lowers the floor for the
+        PRNs still to examine -- the paper's multi-stage attenuation. The raw window while the cleaned one has not
+        moved on since the last look (the canceller holds samples while its loops settle), and when a maneuver
+        starts (its followers go on in the raw stream, and follow the attacker's peaks too)."""
+        first = self._cleaned - self._clean.size
+        raw_first = self._seen - self.window
+        if self.maneuver is not None and self.maneuver.due_to_start(raw_first / self.fs_hz):
+            return self._raw, raw_first
+        if self.canceller.prns and self._clean.size >= self.window and first > self._last_look_first:
+            self._last_look_first = first
+            return self._clean, first
+        return self._raw, raw_first
+
     def _examine(self) -> None:
-        t_s = (self._seen - self.window) / self.fs_hz
+        x, first = self._look()
+        self._looked = (x, first)
+        t_s = first / self.fs_hz
         full = self._seen >= self._next_full or not self._present
         prns = list(range(1, 33)) if full else sorted(self._present | self.extra_prns)
         if full:
             self._next_full = self._seen + int(self.d["full_search_every_s"] * self.fs_hz)
-        cafs = self._acquire(self._raw, prns, 0.0, self.cfg["acquisition"]["doppler_max_hz"])
+        cafs = self._acquire(x, prns, 0.0, self.cfg["acquisition"]["doppler_max_hz"])
         # a strong attacker's cross-talk puts peaks on absent PRNs: examining them every look would cost the most
         self._present |= {p for p, c in cafs.items() if examinable(c.best, c, cafs, self.detector.cfg, self.fs_hz)}
         self._last_cafs.update(cafs)
         if self.maneuver is not None and self.maneuver.due_to_start(t_s):
             self._follow_through_maneuver(cafs)
-        looked = self._raw if self.detector.sensitive else self._raw[:self.window // 2]
-        for alarm in self.detector.examine(cafs, t_s, looked):
+        self._check_power(cafs, t_s)
+        for alarm in self.detector.examine(cafs, t_s, x if self.detector.sensitive else x[:self.window // 2]):
             self.alarmed_prns.add(alarm.prn)
             if self.alarm_t_s is None:
                 self.alarm_t_s = t_s
             self._emit("spoofing_alarm", t_s, **alarm.pair.as_event())
             if self.d["mode"] == "full":
                 self._on_alarm(alarm, t_s)
+
+    def _check_power(self, cafs: dict, t_s: float) -> None:
+        """Peaks received stronger than any satellite's signal can be are the attacker's: alarm and cancel them
+        (not a guess), so that the legitimate twins hidden in the attacker's interference surface in the cleaned
+        samples the next looks search."""
+        peaks = {p: c.best for p, c in cafs.items() if examinable(c.best, c, cafs, self.detector.cfg, self.fs_hz)}
+        for prn, cn0_dbhz in implausible_peaks(peaks).items():
+            if prn in self.detector.alarmed:
+                continue
+            self.detector.raise_alarm(prn, t_s)
+            self.alarmed_prns.add(prn)
+            if self.alarm_t_s is None:
+                self.alarm_t_s = t_s
+            peak = peaks[prn]
+            self._emit("spoofing_alarm", t_s, prn=prn, found_by="power", thermal_cn0_dbhz=cn0_dbhz,
+                       code_phase_chips=round(peak.code_phase_chips, 4), doppler_hz=round(peak.doppler_hz, 1))
+            if self.d["mode"] == "full":
+                self._start_cancelling(prn, t_s, Choice(peak, None, False, f"received at {cn0_dbhz} dB-Hz against the "
+                                                        "thermal floor: stronger than any satellite's signal"))
+
+    def beat_alarm(self, beats: dict[int, float], t_s: float) -> None:
+        """Two carriers under the receiver's tracked peaks (beat): the attack is known, those PRNs are not resolved,
+        and every PRN is examined at the highest sensitivity from now on, for the two peaks to part."""
+        for prn, f_hz in beats.items():
+            if prn in self.alarmed_prns:
+                continue
+            self.alarmed_prns.add(prn)
+            self.takeover = True
+            self.detector.first_alarm_s = self.detector.first_alarm_s if self.detector.sensitive else t_s
+            if self.alarm_t_s is None:
+                self.alarm_t_s = t_s
+            self._emit("spoofing_alarm", t_s, prn=prn, found_by="beat", beat_hz=round(f_hz, 1))
 
     def _on_alarm(self, alarm: Alarm, t_s: float) -> None:
         """Cancel the attacker's peak; when that would be a guess and a maneuver is still to come, wait for it."""
@@ -143,7 +204,7 @@ class SpoofGuard:
             self.awaiting[alarm.prn] = alarm
             self._emit("identification_pending", t_s, prn=alarm.prn, maneuver_s=self.maneuver.window_s)
             return
-        self._start_cancelling(alarm, t_s, choice)
+        self._start_cancelling(alarm.prn, t_s, choice)
 
     def _follow_through_maneuver(self, cafs: dict) -> None:
         """The maneuver begins: follow both peaks of every PRN awaiting a verdict, and every other PRN's peak."""
@@ -166,6 +227,7 @@ class SpoofGuard:
             {"prn": v.prn, "peak": v.peak_id, "adversarial": v.adversarial, "decided": v.decided,
              "score": round(v.score, 2), "reason": v.reason} for v in ident.verdicts])
         now = self._seen - self.window
+        self._looked = (self._raw, now)
         lone = {prn for prn, _ in ident.followers if prn not in self.awaiting and (prn, 1) not in ident.followers}
         for v in ident.verdicts:
             if v.decided and v.adversarial and v.prn in lone:
@@ -199,38 +261,39 @@ class SpoofGuard:
             adv, legit = decided.get(prn, (None, None))
             adv_now, legit_now = (adv.peak_at(now), legit.peak_at(now)) if adv is not None else (None, None)
             if adv_now is not None and legit_now is not None:
-                self._start_cancelling(alarm, t_s, Choice(adv_now, legit_now, False, "maneuver: the other peak "
+                self._start_cancelling(prn, t_s, Choice(adv_now, legit_now, False, "maneuver: the other peak "
                                                           "follows the vehicle's motion, this one does not"))
             else:   # examined afresh: its peaks have moved since the alarm
                 self.alarmed_prns.discard(prn)
                 self.detector.alarmed.discard(prn)
                 self.detector.streak[prn] = 0
 
-    def _start_cancelling(self, alarm, t_s: float, choice: Choice | None) -> None:
+    def _start_cancelling(self, prn: int, t_s: float, choice: Choice | None) -> None:
         if choice is None:
             return
         if sum(len(s.tracks) for s in self.canceller.stages) >= self.d["max_tracks"]:
-            self.gave_up[alarm.prn] = "too many spoofed signals at once"
-            self._emit("cancellation_refused", t_s, prn=alarm.prn, reason=self.gave_up[alarm.prn])
+            self.gave_up[prn] = "too many spoofed signals at once"
+            self._emit("cancellation_refused", t_s, prn=prn, reason=self.gave_up[prn])
             return
-        peak_sample = self._seen - self.window
-        peak = refine_peak(self._raw[:self.window // 4], self.fs_hz, self.if_hz, choice.adversarial)
-        amplitude = caf_amplitude(self._raw, self.fs_hz, self.if_hz, peak.prn, peak.code_phase_chips, peak.doppler_hz)
-        stage = sum(1 for s in self.canceller.stages if alarm.prn in s.tracks)
-        if self.canceller.cancel(peak, peak_sample, stage, choice.legitimate.code_phase_chips) is None:
-            self.gave_up[alarm.prn] = f"still spoofed after {stage} SIC iterations"
-            self._emit("cancellation_refused", t_s, prn=alarm.prn, reason=self.gave_up[alarm.prn])
+        x, peak_sample = self._looked
+        peak = refine_peak(x[:self.window // 4], self.fs_hz, self.if_hz, choice.adversarial)
+        amplitude = caf_amplitude(x, self.fs_hz, self.if_hz, peak.prn, peak.code_phase_chips, peak.doppler_hz)
+        legit = None if choice.legitimate is None else choice.legitimate.code_phase_chips
+        stage = sum(1 for s in self.canceller.stages if prn in s.tracks)
+        if self.canceller.cancel(peak, peak_sample, stage, legit) is None:
+            self.gave_up[prn] = f"still spoofed after {stage} SIC iterations"
+            self._emit("cancellation_refused", t_s, prn=prn, reason=self.gave_up[prn])
             return
-        self.cancel_started.setdefault(alarm.prn, t_s)
+        self.cancel_started.setdefault(prn, t_s)
         if choice.guessed:
-            self.guessed.add(alarm.prn)
-        self.pending_verify[alarm.prn] = (t_s + self.d["verify_after_s"], peak, stage)
-        self._emit("cancellation_start", t_s, prn=alarm.prn, stage=stage, guessed=choice.guessed, reason=choice.reason,
+            self.guessed.add(prn)
+        self.pending_verify[prn] = (t_s + self.d["verify_after_s"], peak, stage)
+        self._emit("cancellation_start", t_s, prn=prn, stage=stage, guessed=choice.guessed, reason=choice.reason,
                    adversarial_code_phase_chips=round(peak.code_phase_chips, 4),
                    adversarial_doppler_hz=round(peak.doppler_hz, 1), amplitude_estimate=amplitude,
-                   legitimate_code_phase_chips=round(choice.legitimate.code_phase_chips, 4))
+                   legitimate_code_phase_chips=None if legit is None else round(legit, 4))
         if self.on_cancel is not None:
-            self.on_cancel(alarm.prn, peak, peak_sample)
+            self.on_cancel(prn, peak, peak_sample)
 
     def _verify(self) -> None:
         """SIC: once a stage has settled, re-acquire its PRN on the cleaned signal. If the cancelled peak still
@@ -247,8 +310,7 @@ class SpoofGuard:
             cafs = dict(self._last_cafs)
             cafs.update(self._acquire(self._clean, [prn], peak.doppler_hz, 2000.0))
             caf, target, reason = cafs[prn], None, ""
-            cancelled = self._cancelled_code_phases(prn, first)
-            if caf.best is not None and any(chips_apart(caf.best.code_phase_chips, c) < 0.6 for c in cancelled):
+            if caf.best is not None and self._still_dominates(prn, caf.best.code_phase_chips, first):
                 target, reason = caf.best, "the cancelled peak still dominates"
             else:
                 pairs = auxiliary_peaks(caf, cafs, self.detector.cfg, self.fs_hz)
@@ -280,8 +342,9 @@ class SpoofGuard:
             return prn in self.verified and prn not in self.pending_verify
         single = self.detector.single_looks.get(prn, 0) >= 2 and prn not in self.detector.close
         # one signal is the legitimate one only if it was there before the attack, or the maneuver showed it follows
-        # the vehicle: a spoofer on from power-on, its legitimate twin too weak to see, is one signal too
-        return single and (prn in self.maneuver_legit or self.detector.predates_attack(prn))
+        # the vehicle: a spoofer on from power-on, its legitimate twin too weak to see, is one signal too; and after a
+        # takeover, so are the two merged
+        return single and (prn in self.maneuver_legit or (self.detector.predates_attack(prn) and not self.takeover))
 
     def _forget_lost(self, t_s: float) -> None:
         """A PRN whose every cancellation track lost the spoofer is examined afresh: alarmed again if the spoofer is
@@ -294,15 +357,24 @@ class SpoofGuard:
             self.detector.alarmed.discard(prn)
             self._emit("cancellation_lost", t_s, prn=prn)
 
-    def _cancelled_code_phases(self, prn: int, sample: int) -> list[float]:
-        """Where the attacker's peaks under cancellation are, in chips, at an absolute sample."""
-        out = []
+    def _still_dominates(self, prn: int, code_phase_chips: float, sample: int) -> bool:
+        """Whether the strongest peak left at a code phase (at an absolute sample) is what remains of a cancelled
+        spoofer: within 0.6 chip of it, and not the legitimate twin, known or surfacing. A twin found now within
+        JOINT_WITHIN_CHIPS (a strong attacker's hid it until cancelled) is handed to the track: the two-path tracker
+        follows both from then on."""
         for st in self.canceller.stages:
             tr = st.tracks.get(prn)
             around = tr.channel.epoch_around(sample) if tr is not None else None
-            if around is not None:
-                out.append(around[1] * 1023.0)
-        return out
+            if around is None:
+                continue
+            offset = (code_phase_chips - around[1] * CA_CODE_LENGTH_CHIPS + 511.5) % CA_CODE_LENGTH_CHIPS - 511.5
+            if tr.legit_offset_chips is None and TWIN_MIN_CHIPS < abs(offset) < JOINT_WITHIN_CHIPS:
+                tr.legit_offset_chips = offset
+            twin = tr.legit_offset_chips
+            if abs(offset) < 0.6 and (twin is None or abs(offset) <= abs(offset - twin)):
+                return True
+        return False
+
 
     def finish(self) -> None:
         """At the end of the stream: what the canceller achieved, and what was given up."""

@@ -10,7 +10,7 @@ from .detector import Alarm
 @dataclass(frozen=True)
 class Choice:
     adversarial: Peak
-    legitimate: Peak
+    legitimate: Peak | None   # None when the legitimate peak is not in sight (hidden under a strong attacker's)
     guessed: bool          # True when nothing but the policy's assumption says so
     reason: str
 

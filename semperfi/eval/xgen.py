@@ -63,6 +63,7 @@ class Case:
     seed: int = 1
     attacker: bool = True            # False: the legitimate scene and noise only
     motion: str = ""                 # the receiver's 10 Hz trajectory (gps-sdr-sim -u: t,x,y,z ECEF); empty: static
+    spoof_motion: str = ""           # the spoofer's claimed trajectory instead of a static claimed place (takeover)
 
     @property
     def tag(self) -> str:
@@ -72,6 +73,8 @@ class Case:
             attack += f"-from{self.spoof_start_s:g}s"
         if self.motion:
             attack += "-" + Path(self.motion).stem
+        if self.attacker and self.spoof_motion:
+            attack = f"{Path(self.spoof_motion).stem}-{self.advantage_db:+g}dB"
         return f"{self.place.name}-{day}-{attack}-{self.fs_hz / 1e6:g}M-{self.duration_s:g}s-s{self.seed}"
 
 
@@ -120,6 +123,19 @@ def render(nav_path: str | Path, out: Path, place: Place, case: Case, motion: st
     r = subprocess.run(args, capture_output=True, text=True, timeout=3600, cwd=out.parent)
     if r.returncode != 0 or not out.is_file():
         raise XgenError(f"gps-sdr-sim failed ({r.returncode}): {(r.stderr or r.stdout).strip().splitlines()[-1:]}")
+    return out
+
+
+def takeover_motion(place: Place, hold_s: float, speed_m_s: float, duration_s: float, out: Path,
+                    azimuth_deg: float = 90.0) -> Path:
+    """A seamless takeover's claimed trajectory (gps-sdr-sim -u, 10 Hz ECEF rows): at the receiver's own position for
+    hold_s (the spoofer's scene is then the legitimate one, sample for sample), then moving away along azimuth_deg."""
+    t_s = np.arange(int(round(duration_s * 10)) + 1) / 10.0
+    along = speed_m_s * np.clip(t_s - hold_s, 0.0, None)
+    az = math.radians(azimuth_deg)
+    x, y, z = pymap3d.enu2ecef(along * math.sin(az), along * math.cos(az), 0.0, place.lat_deg, place.lon_deg,
+                               place.height_m)
+    np.savetxt(out, np.column_stack([t_s, x, y, z]), delimiter=",", fmt="%.1f,%.4f,%.4f,%.4f")
     return out
 
 
@@ -189,7 +205,10 @@ def prepare(case: Case, nav_path: str | Path, work: Path) -> Path:
     trip = f"-{Path(case.motion).stem}" if case.motion else ""
     legit = render(nav_path, scenes / f"{case.place.name}{trip}-{stem}.bin", case.place, case, case.motion)
     spoof = None
-    if case.attacker:
+    if case.attacker and case.spoof_motion:
+        spoof = render(nav_path, scenes / f"{case.place.name}-{Path(case.spoof_motion).stem}-{stem}.bin", case.place,
+                       case, case.spoof_motion)
+    elif case.attacker:
         claimed = claimed_place(case)
         spoof = render(nav_path, scenes / f"{case.place.name}-{case.offset_m:g}m-{case.azimuth_deg:g}deg-{stem}.bin",
                        claimed, case)
