@@ -11,7 +11,7 @@ import numpy as np
 from ..gps.constants import CA_CODE_LENGTH_CHIPS
 from ..receiver.acquisition import DopplerGrid, acquire
 from .canceller import JOINT_WITHIN_CHIPS, Canceller, CancellerConfig, caf_amplitude, refine_peak
-from .detector import Alarm, DetectorConfig, SpoofingDetector, auxiliary_peaks, chips_apart, examinable
+from .detector import Alarm, DetectorConfig, SpoofingDetector, auxiliary_peaks, examinable
 from .power import implausible_peaks
 from .policy import POWER_MARGIN_DB, Choice, by_power, choose, parse_policy
 
@@ -189,7 +189,8 @@ class SpoofGuard:
                 continue
             self.alarmed_prns.add(prn)
             self.takeover = True
-            self.detector.first_alarm_s = self.detector.first_alarm_s if self.detector.sensitive else t_s
+            if not self.detector.sensitive:
+                self.detector.first_alarm_s = t_s
             if self.alarm_t_s is None:
                 self.alarm_t_s = t_s
             self._emit("spoofing_alarm", t_s, prn=prn, found_by="beat", beat_hz=round(f_hz, 1))
