@@ -10,8 +10,8 @@ from ..gps.constants import CA_CHIP_RATE_HZ, L1_HZ
 from ..receiver.chain import Receiver
 from ..receiver.integrity import trusted
 from ..receiver.types import Fix
-from .detector import chips_apart
 from .beat import WINDOW_MS as BEAT_WINDOW_MS, two_carriers
+from .detector import chips_apart
 from .guard import SpoofGuard
 from .maneuver_id import LinkedManeuver, ManeuverIdentifier
 

@@ -63,8 +63,13 @@ class PeakPair:
                 "found_by": self.source}
 
 
+def chips_offset(a: float, b: float) -> float:
+    """Code phase a minus b, wrapped to (-511.5, 511.5] chips."""
+    return (a - b + 511.5) % 1023 - 511.5
+
+
 def chips_apart(a: float, b: float) -> float:
-    return abs((a - b + 511.5) % 1023 - 511.5)
+    return abs(chips_offset(a, b))
 
 
 def auxiliary_peaks(caf: Caf, cafs: dict[int, Caf], cfg: DetectorConfig, fs_hz: float) -> list[PeakPair]:

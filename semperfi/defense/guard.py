@@ -11,7 +11,7 @@ import numpy as np
 from ..gps.constants import CA_CODE_LENGTH_CHIPS
 from ..receiver.acquisition import DopplerGrid, acquire
 from .canceller import JOINT_WITHIN_CHIPS, Canceller, CancellerConfig, caf_amplitude, refine_peak
-from .detector import Alarm, DetectorConfig, SpoofingDetector, auxiliary_peaks, examinable
+from .detector import Alarm, DetectorConfig, SpoofingDetector, auxiliary_peaks, chips_offset, examinable
 from .power import implausible_peaks
 from .policy import POWER_MARGIN_DB, Choice, by_power, choose, parse_policy
 
@@ -155,10 +155,7 @@ class SpoofGuard:
             self._follow_through_maneuver(cafs)
         self._check_power(cafs, t_s)
         for alarm in self.detector.examine(cafs, t_s, x if self.detector.sensitive else x[:self.window // 2]):
-            self.alarmed_prns.add(alarm.prn)
-            if self.alarm_t_s is None:
-                self.alarm_t_s = t_s
-            self._emit("spoofing_alarm", t_s, **alarm.pair.as_event())
+            self._alarm(alarm.prn, t_s, alarm.pair.as_event())
             if self.d["mode"] == "full":
                 self._on_alarm(alarm, t_s)
 
@@ -171,12 +168,10 @@ class SpoofGuard:
             if prn in self.detector.alarmed:
                 continue
             self.detector.raise_alarm(prn, t_s)
-            self.alarmed_prns.add(prn)
-            if self.alarm_t_s is None:
-                self.alarm_t_s = t_s
             peak = peaks[prn]
-            self._emit("spoofing_alarm", t_s, prn=prn, found_by="power", thermal_cn0_dbhz=cn0_dbhz,
-                       code_phase_chips=round(peak.code_phase_chips, 4), doppler_hz=round(peak.doppler_hz, 1))
+            self._alarm(prn, t_s, {"found_by": "power", "thermal_cn0_dbhz": cn0_dbhz,
+                                   "code_phase_chips": round(peak.code_phase_chips, 4),
+                                   "doppler_hz": round(peak.doppler_hz, 1)})
             if self.d["mode"] == "full":
                 self._start_cancelling(prn, t_s, Choice(peak, None, False, f"received at {cn0_dbhz} dB-Hz against the "
                                                         "thermal floor: stronger than any satellite's signal"))
@@ -187,13 +182,17 @@ class SpoofGuard:
         for prn, f_hz in beats.items():
             if prn in self.alarmed_prns:
                 continue
-            self.alarmed_prns.add(prn)
             self.takeover = True
             if not self.detector.sensitive:
                 self.detector.first_alarm_s = t_s
-            if self.alarm_t_s is None:
-                self.alarm_t_s = t_s
-            self._emit("spoofing_alarm", t_s, prn=prn, found_by="beat", beat_hz=round(f_hz, 1))
+            self._alarm(prn, t_s, {"found_by": "beat", "beat_hz": round(f_hz, 1)})
+
+    def _alarm(self, prn: int, t_s: float, event: dict) -> None:
+        """An alarm on a PRN, whatever raised it (the event's fields say what)."""
+        self.alarmed_prns.add(prn)
+        if self.alarm_t_s is None:
+            self.alarm_t_s = t_s
+        self._emit("spoofing_alarm", t_s, **{"prn": prn, **event})
 
     def _on_alarm(self, alarm: Alarm, t_s: float) -> None:
         """Cancel the attacker's peak; when that would be a guess and a maneuver is still to come, wait for it."""
@@ -368,14 +367,13 @@ class SpoofGuard:
             around = tr.channel.epoch_around(sample) if tr is not None else None
             if around is None:
                 continue
-            offset = (code_phase_chips - around[1] * CA_CODE_LENGTH_CHIPS + 511.5) % CA_CODE_LENGTH_CHIPS - 511.5
+            offset = chips_offset(code_phase_chips, around[1] * CA_CODE_LENGTH_CHIPS)
             if tr.legit_offset_chips is None and TWIN_MIN_CHIPS < abs(offset) < JOINT_WITHIN_CHIPS:
                 tr.legit_offset_chips = offset
             twin = tr.legit_offset_chips
             if abs(offset) < 0.6 and (twin is None or abs(offset) <= abs(offset - twin)):
                 return True
         return False
-
 
     def finish(self) -> None:
         """At the end of the stream: what the canceller achieved, and what was given up."""
