@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from semperfi.defense.defended import TRUSTED_STATES
 from semperfi.eval.closed_loop import ClosedLoop, run_closed_loop
 
 SHARED_NAV = Path(__file__).resolve().parents[2] / "shared" / "data" / "brdc0010.22n"
@@ -59,7 +60,7 @@ def outcome(loop: ClosedLoop, duration_s: float) -> dict:
     last = t >= duration_s - 5.0
     row["final_state"] = states[-1] if np.any(last) else None
     row["final_error_m"] = round(float(np.mean(err[last])), 2) if np.any(last) else None
-    row["wrong_good"] = int(sum(np.sum(loop.fix_errors_m(s)[1] > 10.0) for s in ("nominal", "recovered")))
+    row["wrong_good"] = int(sum(np.sum(loop.fix_errors_m(s)[1] > 10.0) for s in TRUSTED_STATES))
     t_rec = loop.fix_errors_m("recovered")[0]
     row["recovered_fixes"] = len(t_rec)
     row["recovered_from_s"] = round(float(t_rec[0]), 1) if len(t_rec) else None

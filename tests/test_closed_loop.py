@@ -7,6 +7,7 @@ while it is wrong."""
 import numpy as np
 import pytest
 
+from semperfi.defense.defended import TRUSTED_STATES
 from semperfi.eval.closed_loop import run_closed_loop
 
 pytest.importorskip("pymavlink", reason="pymavlink is not installed")
@@ -51,7 +52,7 @@ def test_the_verdict_names_the_spoofers_peaks_and_the_receiver_recovers(loop):
 
 
 def test_no_wrong_fix_is_called_good(loop):
-    for state in ("nominal", "recovered"):
+    for state in TRUSTED_STATES:
         _, err = loop.fix_errors_m(state)
         assert not np.any(err > 10.0), f"{np.sum(err > 10.0)} {state} fixes farther than 10 m"
     # recovering (NMEA: caution) is a fix on cancelled or resolved PRNs only: never one still on the spoofer, 1 km off

@@ -10,7 +10,7 @@ import pytest
 from semperfi.cli import _receiver_config
 from semperfi.defense.canceller import (Canceller, caf_amplitude, refine_peak, replicas_reference, residuals,
                                         subtract_replicas)
-from semperfi.defense.defended import DefendedReceiver
+from semperfi.defense.defended import TRUSTED_STATES, DefendedReceiver
 from semperfi.defense.detector import SpoofingDetector, chips_apart
 from semperfi.defense.twopath import delay_profile, delay_profile_reference, two_path_test
 from semperfi.gps.codes import ca_code
@@ -314,7 +314,7 @@ def test_attack_is_recovered_within_5_m_and_no_wrong_fix_is_called_good(tmp_path
     kinds = [e["event"] for e in events]
     assert "spoofing_alarm" in kinds and "cancellation_start" in kinds
     called_good = [(f["t_rx_s"], round(_horizontal_m(f), 1)) for f in fixes
-                   if f["state"] in ("nominal", "recovered") and _horizontal_m(f) > 10.0]
+                   if f["state"] in TRUSTED_STATES and _horizontal_m(f) > 10.0]
     assert not called_good, f"fixes called good while wrong (t, error m): {called_good[:5]}"
     # the newcomers are known on PRNs whose twins lie a chip or more apart; a twin closer than that is resolved by
     # the two-path fit, but which of the two is the newcomer is then a guess, and no fix is called recovered
@@ -343,7 +343,7 @@ def test_a_weaker_attacker_on_from_the_first_sample_is_never_called_recovered(tm
     assert starts and all(e["guessed"] for e in starts), starts
     assert fixes and max(_horizontal_m(f) for f in fixes) > 100.0, "the guess cancels the legitimate signals"
     called_good = [(f["t_rx_s"], f["state"], round(_horizontal_m(f), 1)) for f in fixes
-                   if f["state"] in ("nominal", "recovered") and _horizontal_m(f) > 10.0]
+                   if f["state"] in TRUSTED_STATES and _horizontal_m(f) > 10.0]
     assert not called_good, called_good[:5]
 
 
@@ -460,19 +460,25 @@ def test_two_carriers_under_one_peak_beat_and_one_does_not():
     assert abs(two_carriers(two) - 23.0) <= 2.0
 
 
-def test_an_attacker_far_stronger_than_any_satellite_is_alarmed_at_once_and_recovered(tmp_path, brdc_path):
+@pytest.mark.parametrize("rectify", ["auto", "always"])
+def test_an_attacker_far_stronger_than_any_satellite_is_alarmed_at_once_and_recovered(tmp_path, brdc_path, rectify):
     """+20 dB, synchronized, 1 km east, from the first sample: the legitimate twins are buried in the attacker's
-    multiple-access interference and no second peak shows; the attacker's power names its peaks (not a guess)."""
+    multiple-access interference and no second peak shows; the attacker's power names its peaks (not a guess).
+    With the rectifier always on, every retrieved range is timed by its spoofer's navigation message instead of its
+    own: as accurate, and labelled rectified."""
     duration = 18.0
     simulate(tmp_path / "a.bin", f'constellation.rinex="{brdc_path}"', 'time.start="2022-01-01T00:00:27"',
              "constellation.max_satellites=8", "attacker.enabled=true", "attacker.offset_east_m=1000.0",
              "attacker.power_advantage_db=20.0", duration=duration)
-    summary, fixes, events, _ = _run_defended(tmp_path / "a.bin", tmp_path / "out", nav=str(brdc_path))
+    summary, fixes, events, _ = _run_defended(tmp_path / "a.bin", tmp_path / "out", f'defense.rectify="{rectify}"',
+                                              nav=str(brdc_path))
     power = [e for e in events if e["event"] == "spoofing_alarm" and e.get("found_by") == "power"]
     assert len(power) >= 4 and max(e["t_rx_s"] for e in power) < 1.0, power
     assert not any(e["guessed"] for e in events if e["event"] == "cancellation_start")
     called_good = [(f["t_rx_s"], round(_horizontal_m(f), 1)) for f in fixes
-                   if f["state"] in ("nominal", "recovered") and _horizontal_m(f) > 10.0]
+                   if f["state"] in TRUSTED_STATES and _horizontal_m(f) > 10.0]
     assert not called_good, called_good[:5]
     last = [_horizontal_m(f) for f in fixes if float(f["t_rx_s"]) > duration - 5.0]
-    assert last and np.mean(last) < 5.0 and fixes[-1]["state"] == "recovered", (np.mean(last), fixes[-1]["state"])
+    state = "recovered" if rectify == "auto" else "rectified"
+    assert last and np.mean(last) < 5.0 and fixes[-1]["state"] == state, (np.mean(last), fixes[-1]["state"])
+

@@ -13,6 +13,8 @@ DEFAULTS: dict = {
         "max_iterations": 3,        # SIC stages per PRN
         "max_tracks": 24,           # spoofed signals cancelled at once, all PRNs together
         "verify_after_s": 1.0,      # re-acquisition on the cleaned signal this long after a cancellation starts
+        "rectify": "auto",          # auto | always | off: the pseudorange rectifier times a retrieved legitimate signal
+                                    # by its spoofer's navigation message (auto: when it cannot read its own)
         "min_redundancy": 2,        # a recovered fix has at least 4 + this many satellites: its integrity test can
                                     # both detect and exclude one bad range
     },
@@ -30,4 +32,5 @@ DOMAINS: dict = {
     "defense.max_tracks": (1, 256),
     "defense.verify_after_s": (0.0, 3600.0),
     "defense.min_redundancy": (1, 28),
+    "defense.rectify": ("one", "auto", "always", "off"),
 }

@@ -14,9 +14,12 @@ from .beat import WINDOW_MS as BEAT_WINDOW_MS, two_carriers
 from .detector import chips_apart
 from .guard import SpoofGuard
 from .maneuver_id import LinkedManeuver, ManeuverIdentifier
+from .rectifier import Rectifier
 
 
 MAX_RECOVERED_RESIDUAL_M = 30.0
+# the states that call a fix good: a wrong position must never carry one of them
+TRUSTED_STATES = ("nominal", "recovered", "rectified")
 BEAT_CHECK_S = 0.25
 
 
@@ -34,6 +37,9 @@ class DefendedReceiver:
                                 nav_context=lambda: (self.inner.ephemeris_at, self.inner.last_fix))
         self.inner = Receiver(cfg, fs_hz, if_hz, assisted, on_fix=self._label, events=events, week_hint=week_hint,
                               on_observations=on_observations)
+        if self.guard.d["mode"] == "full" and self.guard.d["rectify"] != "off":
+            self.inner.rectifier = Rectifier(self.guard.d["rectify"], week_hint)
+        self._rectifying: set[int] = set()
         self.first_recovered_t_s: float | None = None
         self._next_beat_check = 0
 
@@ -57,6 +63,8 @@ class DefendedReceiver:
         if self.guard.alarm_t_s is not None and self.guard.d["mode"] == "full":
             # once the attack is known, fixes are built from resolved PRNs only, while enough of them remain
             self.inner.excluded_prns = {p for p in self.inner.channels if not self.guard.resolved(p)}
+        if self.inner.rectifier is not None:
+            self.inner.rectifier.update(self.guard.canceller)
         self.inner.feed(cleaned)
         if self.guard.d["mode"] != "off" and self.inner.stats.samples >= self._next_beat_check:
             self._next_beat_check = self.inner.stats.samples + int(BEAT_CHECK_S * self.inner.fs_hz)
@@ -103,8 +111,11 @@ class DefendedReceiver:
         cancelled peak was chosen by assumption (the stronger one, with no earlier lock or maneuver to say so) is not
         resolved: the attacker sets its own power, and if the assumption is wrong the legitimate signal is the one
         cancelled and the range left is the attacker's -- when every PRN is so, consistent with the others, and
-        wrong."""
+        wrong. A fix that would be recovered but times a range by its spoofer's navigation message (the rectifier) is
+        rectified."""
         g = self.guard
+        rectified = set(fix.prns) & self.inner.rectified_prns
+        self._note_rectified(rectified, fix.t_rx_s)
         if g.alarm_t_s is None:
             state = "nominal" if trusted(fix.raim) else "unverified"
         elif g.d["mode"] != "full" or not all(g.resolved(p) or p in g.cancel_started for p in fix.prns):
@@ -113,9 +124,19 @@ class DefendedReceiver:
             checked = (trusted(fix.raim) and fix.n_sats - 4 >= g.d["min_redundancy"]
                        and fix.residual_rms_m < MAX_RECOVERED_RESIDUAL_M)
             state = "recovered" if checked and all(g.resolved(p) for p in fix.prns) else "recovering"
-        if state == "recovered" and self.first_recovered_t_s is None:
+            if state == "recovered" and rectified:
+                state = "rectified"
+        if state in ("recovered", "rectified") and self.first_recovered_t_s is None:
             self.first_recovered_t_s = fix.t_rx_s
             if self.events is not None:
-                self.events.emit("recovered", fix.t_rx_s, time_to_recover_s=round(fix.t_rx_s - g.alarm_t_s, 2))
+                self.events.emit("recovered", fix.t_rx_s, time_to_recover_s=round(fix.t_rx_s - g.alarm_t_s, 2),
+                                 state=state)
         if self.on_fix is not None:
             self.on_fix(replace(fix, state=state))
+
+    def _note_rectified(self, prns: set[int], t_s: float) -> None:
+        """An event when a PRN's range starts or stops being timed by its spoofer's navigation message."""
+        if self.events is not None and prns != self._rectifying:
+            self.events.emit("rectifier", t_s, started=sorted(prns - self._rectifying),
+                             stopped=sorted(self._rectifying - prns), refused=dict(self.inner.rectifier.refused))
+        self._rectifying = prns

@@ -17,6 +17,7 @@ import numpy as np
 from .. import config
 from ..defense.config import DEFAULTS as DEFENSE
 from ..defense.guard import SpoofGuard
+from ..defense.defended import TRUSTED_STATES
 from ..gps.geometry import enu_rotation, geodetic_to_ecef
 from ..iq import open_iq
 from ..receiver.acquisition import DopplerGrid, acquire
@@ -99,7 +100,7 @@ def run_demo(out_dir: str | Path, duration_s: float, sets: list[str], progress: 
         t_r, err_r = loop.fix_errors_m("recovering")
         yield ("SemperFi: no recovered fix yet" + (f"; {len(t_r)} fixes still recovering (a cancellation not yet "
                f"verified), {np.mean(err_r):.1f} m from the truth" if len(t_r) else "") + " (run longer: --duration 100)")
-    wrong = sum(int(np.sum(loop.fix_errors_m(s)[1] > 10.0)) for s in ("nominal", "recovered"))
+    wrong = sum(int(np.sum(loop.fix_errors_m(s)[1] > 10.0)) for s in TRUSTED_STATES)
     yield f"fixes labelled nominal or recovered farther than 10 m from the truth: {wrong}"
     for prn, stages in sorted(summary.get("attenuation_db", {}).items(), key=lambda kv: int(kv[0])):
         values = [v for st in stages for v in st["attenuation_db"]]

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pymap3d
 
+from ..defense.defended import TRUSTED_STATES
 from ..iq.sigmf import build_sigmf_meta, sidecar_path, write_sigmf_meta
 
 GPS_SDR_SIM = "gps-sdr-sim"
@@ -190,10 +191,11 @@ def score(fixes_csv: Path, place: Place, last_s: float = 10.0, bad_m: float = 10
     if not rows:
         return {"fixes": 0}
     last = t >= t[-1] - last_s
-    good = np.array([s in ("nominal", "recovered") for s in states])
+    good = np.array([s in TRUSTED_STATES for s in states])
     return {"fixes": len(rows), "first_fix_s": round(float(t[0]), 1),
             "last_mean_m": round(float(np.mean(err[last])), 2), "max_m": round(float(np.max(err)), 1),
             "last_state": states[-1], "recovered": int(sum(s == "recovered" for s in states)),
+            "rectified": int(sum(s == "rectified" for s in states)),
             "called_good_but_wrong": int(np.sum(good & (err > bad_m)))}
 
 
@@ -216,8 +218,9 @@ def prepare(case: Case, nav_path: str | Path, work: Path) -> Path:
 
 
 def run_case(case: Case, nav_path: str | Path, work: Path, defense: str = "full", assisted: bool = True,
-             imu_csv: str | Path | None = None) -> dict:
-    """Prepare a case, run `semperfi run` on it in-process (with --imu TRACK.csv when given), and score it."""
+             imu_csv: str | Path | None = None, sets: tuple[str, ...] = ()) -> dict:
+    """Prepare a case, run `semperfi run` on it in-process (with --imu TRACK.csv when given, and --set for each of
+    sets), and score it."""
     import functools
 
     from ..cli import _receiver_config
@@ -225,9 +228,10 @@ def run_case(case: Case, nav_path: str | Path, work: Path, defense: str = "full"
     from ..defense.imu_track import read_imu_csv
     from ..receiver.run import run_file
     data = prepare(case, nav_path, work)
-    out = work / f"{case.tag}-{defense}{'' if assisted else '-unassisted'}{'-imu' if imu_csv else ''}"
+    variant = "".join("-" + s.replace('"', "").replace("=", "-") for s in sets)
+    out = work / f"{case.tag}-{defense}{'' if assisted else '-unassisted'}{'-imu' if imu_csv else ''}{variant}"
     receiver = functools.partial(DefendedReceiver, imu_track=read_imu_csv(imu_csv) if imu_csv else None)
-    run_file(data, None, None, None, _receiver_config(None, [f'defense.mode="{defense}"', *RECEIVER_SETTINGS]), out,
+    run_file(data, None, None, None, _receiver_config(None, [f'defense.mode="{defense}"', *RECEIVER_SETTINGS, *sets]), out,
              str(nav_path) if assisted else None, receiver_factory=receiver)
     return {"case": case.tag, "defense": defense, "assisted": assisted,
             **score(out / "fixes.csv", case.place, motion=case.motion)}

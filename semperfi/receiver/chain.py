@@ -7,7 +7,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..gps.ephemeris import IonoParams
+from ..gps.ephemeris import IonoParams, satellite_clock, satellite_position, satellite_position_velocity
+from ..gps.geometry import light_time_range
 from ..gps.constants import L1_WAVELENGTH_M, SECONDS_PER_WEEK, SPEED_OF_LIGHT_M_S
 from ..gps.time import GpsTime, wrap_week_s
 from .acquisition import Caf, DopplerGrid, acquire, is_cross_correlation
@@ -85,6 +86,9 @@ class Receiver:
         self.excluded_prns: set[int] = set()
         self.min_sats_excluding = 5
         self.raim = self._raim_config()
+        # a supervisor's pseudorange rectifier (defense.rectifier.Rectifier), and the PRNs it timed at the last epoch
+        self.rectifier = None
+        self.rectified_prns: set[int] = set()
 
     # -- events ---------------------------------------------------------------------------------------------
     def _emit(self, kind: str, t_rx_s: float, **fields) -> None:
@@ -250,22 +254,47 @@ class Receiver:
             self._fix_at(sample)
 
     def observations_at(self, sample: float) -> list[tuple[int, float, float, float, object, Channel]]:
-        """(prn, t_sv_s, doppler_hz, cn0_dbhz, ephemeris, channel) for every channel that can say its transmit time."""
+        """(prn, t_sv_s, doppler_hz, cn0_dbhz, ephemeris, channel) for every channel that can say its transmit time:
+        from its own navigation message, or from the rectifier (a supervisor's) for the PRNs it takes over."""
         out = []
+        self.rectified_prns = set()
         for prn, ch in self.channels.items():
-            anchor = self.decoders[prn].time_anchor
-            if anchor is None or ch.bits.edge_ms is None or ch.pull_in:
+            if ch.pull_in:
                 continue
-            start_bit, t_sv_start = anchor
-            t_sv = ch.transmit_time_at(sample, ch.ms_of_bit(start_bit), t_sv_start)
-            if t_sv is None:
-                continue
-            t_sv %= SECONDS_PER_WEEK
-            eph = self._ephemeris(prn, t_sv)
-            if eph is None:
-                continue
-            out.append((prn, t_sv, ch.doppler_at(sample), float(ch.cn0_dbhz), eph, ch))
+            own = self._own_transmit_time(prn, ch, sample)
+            if self.rectifier is not None and self.rectifier.wants(prn, own is not None):
+                r = self.rectifier.rectify(prn, ch, sample, self._ephemeris, self.predicted_transmit_time)
+                own = None if r is None else (r.t_sv_s, r.ephemeris)
+                if r is not None:
+                    self.rectified_prns.add(prn)
+            if own is not None:
+                out.append((prn, own[0], ch.doppler_at(sample), float(ch.cn0_dbhz), own[1], ch))
         return out
+
+    def _own_transmit_time(self, prn: int, ch: Channel, sample: float) -> tuple[float, object] | None:
+        """(t_sv_s, ephemeris) at a sample from the channel's own time anchor (its HOW), or None."""
+        anchor = self.decoders[prn].time_anchor
+        if anchor is None or ch.bits.edge_ms is None:
+            return None
+        start_bit, t_sv_start = anchor
+        t_sv = ch.transmit_time_at(sample, ch.ms_of_bit(start_bit), t_sv_start)
+        if t_sv is None:
+            return None
+        t_sv %= SECONDS_PER_WEEK
+        eph = self._ephemeris(prn, t_sv)
+        return None if eph is None else (t_sv, eph)
+
+    def predicted_transmit_time(self, eph, sample: float) -> float | None:
+        """The satellite time a signal received at a sample carries, predicted from the last fix's position and
+        clock (coarse time; None before the first fix). Good to the last fix's errors: a kilometre is 3 us."""
+        fix = self.last_fix
+        if fix is None:
+            return None
+        dt_s = sample / self.fs_hz - fix.t_rx_s
+        gps_s = fix.gps_tow_s + dt_s * (1.0 - fix.clock_drift_m_s / SPEED_OF_LIGHT_M_S)
+        _, t_tx, _, _ = light_time_range(lambda t: satellite_position(eph, t),
+                                         lambda t: satellite_position_velocity(eph, t), fix.pos_ecef_m, gps_s)
+        return float((t_tx + satellite_clock(eph, t_tx)[0]) % SECONDS_PER_WEEK)
 
     def _smoothed_m(self, ch: Channel, sample: float, pseudorange_m: float) -> float:
         """Carrier-smoothed pseudorange (Hatch filter): the code's noise averaged over smoothing_s, the carrier's

@@ -1,0 +1,95 @@
+"""The pseudorange rectifier (the paper's section 3.4, equations 11-13): a legitimate signal retrieved from under a
+strong spoofer, but too disturbed to read its own navigation message, takes its transmit time from the spoofer's.
+
+The canceller follows every spoofed signal with a tracking channel; its data bits are decoded here like any
+satellite's (the spoofer's TOW and, without assistance, its ephemeris). A stealthy attacker moves a position by the
+signals' times of arrival and keeps the navigation data, so at any receive instant the legitimate signal's transmit
+time is the spoofer's plus the offset of the two code phases:
+
+    t_l = t_at + (phase_l - phase_at)    with  phase_l - phase_at  known modulo one code period (1 ms)
+
+The whole milliseconds come from the receiver's own clock when it has one (the last fix predicts every satellite's
+transmit time to well under half a millisecond: coarse time), else from the paper's assumption that the spoofer
+keeps within half a millisecond of GPS time. Verify before trusting: a spoofer whose time is whole milliseconds or
+seconds away from the receiver's prediction is refused, and the rectified ranges go through the same integrity test
+(RAIM) as every other fix -- the attacker may alter the navigation data too.
+"""
+
+from dataclasses import dataclass
+
+from ..gps.constants import SECONDS_PER_WEEK
+from ..gps.time import wrap_week_s
+from ..receiver.navigation import NavDecoder
+from ..receiver.tracking import Channel
+from .canceller import AdversaryTrack, Canceller
+
+MODES = ("auto", "always", "off")
+CODE_PERIOD_S = 1e-3
+MAX_TIME_STEP_S = 0.010        # a spoofer's time this far from the receiver's prediction or further is refused
+
+
+@dataclass(frozen=True)
+class Rectified:
+    t_sv_s: float              # the legitimate signal's transmit time at the sample
+    ephemeris: object
+    offset_s: float            # t_l - t_at: the spoofer's time of arrival less the legitimate one's
+    adversary_stage: int
+
+
+class Rectifier:
+    """Decodes every spoofed signal the canceller follows, and rectifies the legitimate channels of the same PRNs."""
+
+    def __init__(self, mode: str = "auto", week_hint: int | None = None):
+        if mode not in MODES:
+            raise ValueError(f"defense.rectify wants one of {', '.join(MODES)}; got '{mode}'")
+        self.mode, self.week_hint = mode, week_hint
+        self._decoders: dict[AdversaryTrack, NavDecoder] = {}
+        self.refused: dict[int, str] = {}      # PRN -> why its spoofer's time was not taken (latest)
+
+    def update(self, canceller: Canceller) -> None:
+        """Read the data bits every spoofer's channel has completed (call after each push through the canceller)."""
+        live = {tr for st in canceller.stages for tr in st.tracks.values()}
+        self._decoders = {tr: dec for tr, dec in self._decoders.items() if tr in live}
+        for tr in live:
+            dec = self._decoders.setdefault(tr, NavDecoder(tr.prn, self.week_hint))
+            soft, first = tr.channel.take_bits()
+            if soft.size:
+                dec.push_bits(soft, first)
+
+    def wants(self, prn: int, has_own_time: bool) -> bool:
+        """Whether a channel's range is to be rectified: always (mode always), or when it cannot say its own
+        transmit time (auto); only for PRNs whose spoofer is being followed."""
+        if self.mode == "off" or (self.mode == "auto" and has_own_time):
+            return False
+        return any(tr.prn == prn for tr in self._decoders)
+
+    def rectify(self, prn: int, legit: Channel, sample: float, ephemeris_of, predict) -> Rectified | None:
+        """The legitimate channel's transmit time at an absolute sample, from the spoofer it was retrieved from.
+
+        ephemeris_of(prn, tow_s): the receiver's own ephemeris (assisted or decoded), else the spoofer's is used;
+        predict(ephemeris, sample): the receiver clock's prediction of the transmit time, or None without a fix."""
+        for tr, dec in sorted(self._decoders.items(), key=lambda item: item[0].stage):
+            if tr.prn != prn or dec.time_anchor is None:
+                continue
+            adv = tr.channel
+            start_bit, t0 = dec.time_anchor
+            t_at = adv.transmit_time_at(sample, adv.ms_of_bit(start_bit), t0)
+            at, lg = adv.epoch_around(sample), legit.epoch_around(sample)
+            if t_at is None or at is None or lg is None:
+                continue
+            offset = ((lg[1] - at[1] + 0.5) % 1.0 - 0.5) * CODE_PERIOD_S
+            t_sv = (t_at + offset) % SECONDS_PER_WEEK
+            eph = ephemeris_of(prn, t_sv) or dec.ephemeris
+            if eph is None:
+                continue
+            predicted = predict(eph, sample)
+            if predicted is not None:
+                whole = round(wrap_week_s(predicted - t_sv) / CODE_PERIOD_S) * CODE_PERIOD_S
+                if abs(whole) >= MAX_TIME_STEP_S:
+                    self.refused[prn] = f"{whole * 1e3:+.0f} ms from the receiver clock's prediction"
+                    return None
+                offset += whole
+                t_sv = (t_sv + whole) % SECONDS_PER_WEEK
+            self.refused.pop(prn, None)
+            return Rectified(t_sv, eph, offset, tr.stage)
+        return None
