@@ -71,7 +71,8 @@ def test_a_far_stronger_attacker_from_another_generator_is_recovered(tmp_path, b
     r = run_case(Case(PLACES["boston"], 1000.0, 20.0, duration_s=24.0), brdc_path, tmp_path)
     print(r)
     assert r["called_good_but_wrong"] == 0, r
-    assert r["last_state"] == "recovered" and r["last_mean_m"] < 5.0, r
+    # a channel that has not yet read its own navigation message is timed by its spoofer's: rectified
+    assert r["last_state"] in ("recovered", "rectified") and r["last_mean_m"] < 2.0, r
 
 
 def test_a_seamless_takeover_from_another_generator_is_alarmed_before_the_drag_and_never_called_good(tmp_path,

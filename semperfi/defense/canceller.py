@@ -240,6 +240,13 @@ class AdversaryTrack:
             self._legit_ref = ref
         return est
 
+    @property
+    def twin_advantage_db(self) -> float | None:
+        """How much stronger the spoofer is than its legitimate twin within a chip (None without a twin so close)."""
+        if not self._joint() or self._ref == 0 or self._legit_ref == 0:
+            return None
+        return float(20 * np.log10(abs(self._ref) / abs(self._legit_ref)))
+
     def _joint(self) -> bool:
         return self.legit_offset_chips is not None and abs(self.legit_offset_chips) < JOINT_WITHIN_CHIPS
 

@@ -6,18 +6,26 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..gps.constants import CA_CHIP_RATE_HZ, L1_HZ
+from ..gps.constants import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, L1_HZ
 from ..receiver.chain import Receiver
 from ..receiver.integrity import trusted
 from ..receiver.types import Fix
 from .beat import WINDOW_MS as BEAT_WINDOW_MS, two_carriers
-from .detector import chips_apart
+from .canceller import JOINT_WITHIN_CHIPS
+from .detector import chips_apart, chips_offset
 from .guard import SpoofGuard
 from .maneuver_id import LinkedManeuver, ManeuverIdentifier
 from .rectifier import Rectifier
 
 
 MAX_RECOVERED_RESIDUAL_M = 30.0
+# A legitimate signal within BIASED_WITHIN_CHIPS of a spoofer BIASED_TWIN_DB stronger keeps, after cancellation, the
+# spoofer's residual (some 25 dB down) within 15 dB of itself, and the closer the twin the worse the spoofer's own
+# estimate: a multipath at under a chip. Measured on GPS-SDR-SIM at +15 dB, 500 m: twins 0.4-0.5 chip away biased
+# 2-8 m, those 0.85-1.2 chip away under 1.5 m
+BIASED_TWIN_DB = 10.0
+BIASED_WITHIN_CHIPS = 0.6
+TWIN_SPACING_CHIPS = 0.1   # the early-late spacing of a legitimate channel with a spoofer within a chip
 # the states that call a fix good: a wrong position must never carry one of them
 TRUSTED_STATES = ("nominal", "recovered", "rectified")
 BEAT_CHECK_S = 0.25
@@ -63,12 +71,45 @@ class DefendedReceiver:
         if self.guard.alarm_t_s is not None and self.guard.d["mode"] == "full":
             # once the attack is known, fixes are built from resolved PRNs only, while enough of them remain
             self.inner.excluded_prns = {p for p in self.inner.channels if not self.guard.resolved(p)}
+            self._watch_twins()
         if self.inner.rectifier is not None:
             self.inner.rectifier.update(self.guard.canceller)
         self.inner.feed(cleaned)
         if self.guard.d["mode"] != "off" and self.inner.stats.samples >= self._next_beat_check:
             self._next_beat_check = self.inner.stats.samples + int(BEAT_CHECK_S * self.inner.fs_hz)
             self._check_beats()
+
+    def _watch_twins(self) -> None:
+        """A legitimate channel within a chip of its spoofer tracks under the spoofer's cancellation residual, which
+        pulls its early-late balance like a multipath: it narrows its correlator (the residual's pull shrinks with
+        the spacing), and its range is left out of the fixes while enough others remain when the spoofer is much the
+        stronger (a fix that still needs it is not called recovered)."""
+        self.inner.min_sats_distrusting = 4 + self.guard.d["min_redundancy"]
+        self.inner.distrusted_prns = set()
+        for prn, ch in self.inner.channels.items():
+            if not ch.pull_in and self.guard.resolved(prn):
+                self._measure_twin(prn, ch)
+            twin = self.guard.close_twin(prn)
+            if twin is None:
+                continue
+            if ch.cfg.spacing_chips > TWIN_SPACING_CHIPS:
+                ch.cfg = replace(ch.cfg, spacing_chips=TWIN_SPACING_CHIPS)
+            gap_db, offset_chips = twin
+            if gap_db >= BIASED_TWIN_DB and abs(offset_chips) < BIASED_WITHIN_CHIPS:
+                self.inner.distrusted_prns.add(prn)
+
+    def _measure_twin(self, prn: int, ch) -> None:
+        """The legitimate channel, tracking the cleaned samples, says where the twin is: its latest code epoch
+        against the spoofer's code phase at that sample. The canceller's two-path fit, weak on a twin much weaker
+        than its spoofer and within half a chip, drifts away from it on its own."""
+        epoch = float(ch.epoch_sample[(ch.ms - 1) % ch.HISTORY_MS])
+        for st in self.guard.canceller.stages:
+            tr = st.tracks.get(prn)
+            around = None if tr is None or tr.legit_offset_chips is None else tr.channel.epoch_around(epoch)
+            if around is not None:
+                offset = chips_offset(0.0, around[1] * CA_CODE_LENGTH_CHIPS)
+                if abs(offset) < JOINT_WITHIN_CHIPS + 0.5:
+                    tr.legit_offset_chips = offset
 
     def _check_beats(self) -> None:
         """Two carriers under a tracked peak (beat), on two PRNs or more (one, once the attack is known): a spoofer
@@ -123,7 +164,8 @@ class DefendedReceiver:
         else:
             checked = (trusted(fix.raim) and fix.n_sats - 4 >= g.d["min_redundancy"]
                        and fix.residual_rms_m < MAX_RECOVERED_RESIDUAL_M)
-            state = "recovered" if checked and all(g.resolved(p) for p in fix.prns) else "recovering"
+            unbiased = not set(fix.prns) & self.inner.distrusted_prns
+            state = "recovered" if checked and unbiased and all(g.resolved(p) for p in fix.prns) else "recovering"
             if state == "recovered" and rectified:
                 state = "rectified"
         if state in ("recovered", "rectified") and self.first_recovered_t_s is None:

@@ -346,6 +346,13 @@ class SpoofGuard:
         # takeover, so are the two merged
         return single and (prn in self.maneuver_legit or (self.detector.predates_attack(prn) and not self.takeover))
 
+    def close_twin(self, prn: int) -> tuple[float, float] | None:
+        """(how much stronger than its legitimate twin the spoofer is in dB, the twin's offset in chips) when the two
+        lie within JOINT_WITHIN_CHIPS, from the strongest of the PRN's tracks; None when none is so close."""
+        twins = [(tr.twin_advantage_db, tr.legit_offset_chips) for st in self.canceller.stages
+                 if (tr := st.tracks.get(prn)) is not None and tr.twin_advantage_db is not None]
+        return max(twins) if twins else None
+
     def _forget_lost(self, t_s: float) -> None:
         """A PRN whose every cancellation track lost the spoofer is examined afresh: alarmed again if the spoofer is
         still there (its verification no longer holds)."""

@@ -85,6 +85,9 @@ class Receiver:
         # PRNs a supervisor (the defence) distrusts: left out of fixes while enough others remain
         self.excluded_prns: set[int] = set()
         self.min_sats_excluding = 5
+        # and PRNs it trusts less (a range it knows to be biased): left out while this many others remain
+        self.distrusted_prns: set[int] = set()
+        self.min_sats_distrusting = 6
         self.raim = self._raim_config()
         # a supervisor's pseudorange rectifier (defense.rectifier.Rectifier), and the PRNs it timed at the last epoch
         self.rectifier = None
@@ -324,9 +327,11 @@ class Receiver:
 
     def _fix_at(self, sample: float) -> None:
         raw = self.observations_at(sample)
-        trusted = [r for r in raw if r[0] not in self.excluded_prns]
-        if len(trusted) >= self.min_sats_excluding:
-            raw = trusted
+        for left_out, enough in ((self.excluded_prns, self.min_sats_excluding),
+                                 (self.distrusted_prns, self.min_sats_distrusting)):
+            kept = [r for r in raw if r[0] not in left_out]
+            if len(kept) >= enough:
+                raw = kept
         if len(raw) < 4:
             return
         if self._t_rx0 is None:   # start the receiver clock so the pseudoranges come out near 20 000 km
