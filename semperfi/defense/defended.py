@@ -26,6 +26,7 @@ MAX_RECOVERED_RESIDUAL_M = 30.0
 BIASED_TWIN_DB = 10.0
 BIASED_WITHIN_CHIPS = 0.6
 TWIN_SPACING_CHIPS = 0.1   # the early-late spacing of a legitimate channel with a spoofer within a chip
+TWIN_MEASURE_REACH_CHIPS = JOINT_WITHIN_CHIPS + 0.5   # a twin measured this far off has left the two-path tracker
 # the states that call a fix good: a wrong position must never carry one of them
 TRUSTED_STATES = ("nominal", "recovered", "rectified")
 BEAT_CHECK_S = 0.25
@@ -108,7 +109,7 @@ class DefendedReceiver:
             around = None if tr is None or tr.legit_offset_chips is None else tr.channel.epoch_around(epoch)
             if around is not None:
                 offset = chips_offset(0.0, around[1] * CA_CODE_LENGTH_CHIPS)
-                if abs(offset) < JOINT_WITHIN_CHIPS + 0.5:
+                if abs(offset) < TWIN_MEASURE_REACH_CHIPS:
                     tr.legit_offset_chips = offset
 
     def _check_beats(self) -> None:
