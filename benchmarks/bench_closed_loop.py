@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from semperfi.defense.defended import TRUSTED_STATES
+from semperfi.receiver.types import TRUSTED_STATES
 from semperfi.eval.closed_loop import ClosedLoop, run_closed_loop
 
 SHARED_NAV = Path(__file__).resolve().parents[2] / "shared" / "data" / "brdc0010.22n"

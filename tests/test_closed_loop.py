@@ -7,7 +7,7 @@ while it is wrong."""
 import numpy as np
 import pytest
 
-from semperfi.defense.defended import TRUSTED_STATES
+from semperfi.receiver.types import TRUSTED_STATES
 from semperfi.eval.closed_loop import run_closed_loop
 
 pytest.importorskip("pymavlink", reason="pymavlink is not installed")

@@ -10,8 +10,10 @@ import pytest
 from semperfi.cli import _receiver_config
 from semperfi.defense.canceller import (Canceller, caf_amplitude, refine_peak, replicas_reference, residuals,
                                         subtract_replicas)
-from semperfi.defense.defended import TRUSTED_STATES, DefendedReceiver
-from semperfi.defense.detector import SpoofingDetector, chips_apart
+from semperfi.defense.defended import DefendedReceiver
+from semperfi.defense.detector import SpoofingDetector
+from semperfi.gps.codes import chips_apart
+from semperfi.receiver.types import TRUSTED_STATES
 from semperfi.defense.twopath import delay_profile, delay_profile_reference, two_path_test
 from semperfi.gps.codes import ca_code
 from semperfi.gps.geometry import enu_rotation, geodetic_to_ecef

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from ..gps.codes import ca_code
+from ..gps.codes import ca_code, chips_apart, chips_offset
 from ..gps.constants import CA_CODE_LENGTH_CHIPS
 from ..receiver.acquisition import DopplerGrid, Peak, acquire
 from ..receiver.correlator import CodeBank, fill_lanes, lane_buffer, replica, sub_block_samples
@@ -142,7 +142,7 @@ def refine_peak(samples: np.ndarray, fs_hz: float, if_hz: float, peak: Peak) -> 
     """The adversarial peak on a narrow fine grid (25 Hz, 5 ms coherent), keeping to its own code phase."""
     grid = DopplerGrid(peak.doppler_hz, 300.0, 25.0)
     caf = acquire(samples, fs_hz, [peak.prn], grid, if_hz, coherent_ms=5, noncoherent=2, pfa=1e-2, max_peaks=8)[peak.prn]
-    near = [p for p in caf.peaks if abs((p.code_phase_chips - peak.code_phase_chips + 511.5) % 1023 - 511.5) < 0.6]
+    near = [p for p in caf.peaks if chips_apart(p.code_phase_chips, peak.code_phase_chips) < 0.6]
     return near[0] if near else peak
 
 
@@ -402,7 +402,7 @@ class Canceller:
             self.stages.append(st)
         offset = None
         if legit_code_phase_chips is not None:
-            offset = (legit_code_phase_chips - peak.code_phase_chips + 511.5) % CA_CODE_LENGTH_CHIPS - 511.5
+            offset = chips_offset(legit_code_phase_chips, peak.code_phase_chips)
         return self.stages[stage].add(peak, peak_sample, offset)
 
     def push(self, chunk: np.ndarray) -> np.ndarray:

@@ -6,13 +6,13 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..gps.constants import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, L1_HZ
+from ..gps.codes import chips_apart, chips_offset
+from ..gps.constants import CA_CHIP_RATE_HZ, L1_HZ
 from ..receiver.chain import Receiver
 from ..receiver.integrity import trusted
 from ..receiver.types import Fix
 from .beat import WINDOW_MS as BEAT_WINDOW_MS, two_carriers
 from .canceller import JOINT_WITHIN_CHIPS
-from .detector import chips_apart, chips_offset
 from .guard import SpoofGuard
 from .maneuver_id import LinkedManeuver, ManeuverIdentifier
 from .rectifier import Rectifier
@@ -27,8 +27,6 @@ BIASED_TWIN_DB = 10.0
 BIASED_WITHIN_CHIPS = 0.6
 TWIN_SPACING_CHIPS = 0.1   # the early-late spacing of a legitimate channel with a spoofer within a chip
 TWIN_MEASURE_REACH_CHIPS = JOINT_WITHIN_CHIPS + 0.5   # a twin measured this far off has left the two-path tracker
-# the states that call a fix good: a wrong position must never carry one of them
-TRUSTED_STATES = ("nominal", "recovered", "rectified")
 BEAT_CHECK_S = 0.25
 
 
@@ -46,6 +44,7 @@ class DefendedReceiver:
                                 nav_context=lambda: (self.inner.ephemeris_at, self.inner.last_fix))
         self.inner = Receiver(cfg, fs_hz, if_hz, assisted, on_fix=self._label, events=events, week_hint=week_hint,
                               on_observations=on_observations)
+        self.inner.min_sats_distrusting = 4 + self.guard.d["min_redundancy"]
         if self.guard.d["mode"] == "full" and self.guard.d["rectify"] != "off":
             self.inner.rectifier = Rectifier(self.guard.d["rectify"], week_hint)
         self._rectifying: set[int] = set()
@@ -85,7 +84,6 @@ class DefendedReceiver:
         pulls its early-late balance like a multipath: it narrows its correlator (the residual's pull shrinks with
         the spacing), and its range is left out of the fixes while enough others remain when the spoofer is much the
         stronger (a fix that still needs it is not called recovered)."""
-        self.inner.min_sats_distrusting = 4 + self.guard.d["min_redundancy"]
         self.inner.distrusted_prns = set()
         for prn, ch in self.inner.channels.items():
             if not ch.pull_in and self.guard.resolved(prn):
@@ -106,9 +104,9 @@ class DefendedReceiver:
         epoch = float(ch.epoch_sample[(ch.ms - 1) % ch.HISTORY_MS])
         for st in self.guard.canceller.stages:
             tr = st.tracks.get(prn)
-            around = None if tr is None or tr.legit_offset_chips is None else tr.channel.epoch_around(epoch)
-            if around is not None:
-                offset = chips_offset(0.0, around[1] * CA_CODE_LENGTH_CHIPS)
+            spoofer_chips = None if tr is None or tr.legit_offset_chips is None else tr.channel.code_phase_at(epoch)
+            if spoofer_chips is not None:
+                offset = chips_offset(0.0, spoofer_chips)
                 if abs(offset) < TWIN_MEASURE_REACH_CHIPS:
                     tr.legit_offset_chips = offset
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..gps.constants import CA_CHIP_RATE_HZ, L1_HZ
-from ..gps.codes import ca_code
+from ..gps.codes import ca_code, chips_apart
 from ..receiver.acquisition import Caf, Peak
 from .twopath import two_path_test
 
@@ -61,15 +61,6 @@ class PeakPair:
         return {"prn": self.prn, "main": peak(self.main), "auxiliary": peak(self.auxiliary),
                 "separation_chips": round(self.separation_chips, 3), "separation_ns": round(self.separation_chips / CA_CHIP_RATE_HZ * 1e9, 1),
                 "found_by": self.source}
-
-
-def chips_offset(a: float, b: float) -> float:
-    """Code phase a minus b, wrapped to (-511.5, 511.5] chips."""
-    return (a - b + 511.5) % 1023 - 511.5
-
-
-def chips_apart(a: float, b: float) -> float:
-    return abs(chips_offset(a, b))
 
 
 def auxiliary_peaks(caf: Caf, cafs: dict[int, Caf], cfg: DetectorConfig, fs_hz: float) -> list[PeakPair]:

@@ -8,10 +8,10 @@ Used in front of the receiver chain (DefendedReceiver) and on its own as the plu
 
 import numpy as np
 
-from ..gps.constants import CA_CODE_LENGTH_CHIPS
+from ..gps.codes import chips_offset
 from ..receiver.acquisition import DopplerGrid, acquire
 from .canceller import JOINT_WITHIN_CHIPS, Canceller, CancellerConfig, caf_amplitude, refine_peak
-from .detector import Alarm, DetectorConfig, SpoofingDetector, auxiliary_peaks, chips_offset, examinable
+from .detector import Alarm, DetectorConfig, SpoofingDetector, auxiliary_peaks, examinable
 from .power import implausible_peaks
 from .policy import POWER_MARGIN_DB, Choice, by_power, choose, parse_policy
 
@@ -371,10 +371,10 @@ class SpoofGuard:
         follows both from then on."""
         for st in self.canceller.stages:
             tr = st.tracks.get(prn)
-            around = tr.channel.epoch_around(sample) if tr is not None else None
-            if around is None:
+            spoofer_chips = tr.channel.code_phase_at(sample) if tr is not None else None
+            if spoofer_chips is None:
                 continue
-            offset = chips_offset(code_phase_chips, around[1] * CA_CODE_LENGTH_CHIPS)
+            offset = chips_offset(code_phase_chips, spoofer_chips)
             if tr.legit_offset_chips is None and TWIN_MIN_CHIPS < abs(offset) < JOINT_WITHIN_CHIPS:
                 tr.legit_offset_chips = offset
             twin = tr.legit_offset_chips

@@ -13,12 +13,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..gps.codes import chips_apart
 from ..gps.constants import L1_WAVELENGTH_M
 from ..gps.ephemeris import satellite_position
 from ..gps.geometry import enu_rotation
 from ..receiver.acquisition import Peak
 from ..receiver.tracking import NEXT_SAMPLE, Channel, LoopConfig, initial_state
-from .detector import chips_apart
 from .identifier import ImuTrack, LineOfSight, PeakHistory, PeakVerdict, identify_peaks
 from .imu_track import find_maneuver
 

@@ -3,6 +3,7 @@
 import math
 from dataclasses import dataclass
 
+from ..gps.codes import chips_apart, chips_offset
 from ..receiver.acquisition import Peak
 from .detector import Alarm
 
@@ -17,7 +18,7 @@ class Choice:
 
 def _later(a: Peak, b: Peak) -> bool:
     """Whether a arrives later than b: a larger delay is a smaller code phase at the same instant."""
-    return (a.code_phase_chips - b.code_phase_chips + 511.5) % 1023 - 511.5 < 0
+    return chips_offset(a.code_phase_chips, b.code_phase_chips) < 0
 
 
 def parse_policy(text: str) -> tuple[str, frozenset[int]]:
@@ -41,8 +42,7 @@ def choose(alarm: Alarm, policy: str, prns: frozenset[int] = frozenset()) -> Cho
     if policy == "prn" and alarm.prn not in prns:
         return None
     if policy == "auto" and alarm.newcomer_code_phase_chips is not None:
-        newcomer = min((main, aux), key=lambda p: abs((p.code_phase_chips - alarm.newcomer_code_phase_chips + 511.5)
-                                                       % 1023 - 511.5))
+        newcomer = min((main, aux), key=lambda p: chips_apart(p.code_phase_chips, alarm.newcomer_code_phase_chips))
         other = aux if newcomer is main else main
         return Choice(newcomer, other, False, "appeared after the receiver had the other peak")
     if policy == "later":

@@ -17,7 +17,8 @@ seconds away from the receiver's prediction is refused, and the rectified ranges
 
 from dataclasses import dataclass
 
-from ..gps.constants import SECONDS_PER_WEEK
+from ..gps.codes import chips_offset
+from ..gps.constants import CA_CODE_LENGTH_CHIPS, SECONDS_PER_WEEK
 from ..gps.time import wrap_week_s
 from ..receiver.navigation import NavDecoder
 from ..receiver.tracking import Channel
@@ -74,10 +75,10 @@ class Rectifier:
             adv = tr.channel
             start_bit, t0 = dec.time_anchor
             t_at = adv.transmit_time_at(sample, adv.ms_of_bit(start_bit), t0)
-            at, lg = adv.epoch_around(sample), legit.epoch_around(sample)
-            if t_at is None or at is None or lg is None:
+            at_chips, legit_chips = adv.code_phase_at(sample), legit.code_phase_at(sample)
+            if t_at is None or at_chips is None or legit_chips is None:
                 continue
-            offset = ((lg[1] - at[1] + 0.5) % 1.0 - 0.5) * CODE_PERIOD_S
+            offset = chips_offset(legit_chips, at_chips) / CA_CODE_LENGTH_CHIPS * CODE_PERIOD_S
             t_sv = (t_at + offset) % SECONDS_PER_WEEK
             eph = ephemeris_of(prn, t_sv) or dec.ephemeris
             if eph is None:

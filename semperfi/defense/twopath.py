@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from ..gps.codes import ca_code
+from ..gps.codes import ca_code, chips_apart
 from ..gps.constants import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, L1_HZ
 from ..receiver.chisquare import chi2_isf
 
@@ -34,7 +34,7 @@ class TwoPathFit:
 
     @property
     def separation_chips(self) -> float:
-        return abs((self.second_code_phase_chips - self.code_phase_chips + 511.5) % 1023 - 511.5)
+        return chips_apart(self.second_code_phase_chips, self.code_phase_chips)
 
     @property
     def significant(self) -> bool:

@@ -17,7 +17,7 @@ import numpy as np
 from .. import config
 from ..defense.config import DEFAULTS as DEFENSE
 from ..defense.guard import SpoofGuard
-from ..defense.defended import TRUSTED_STATES
+from ..receiver.types import TRUSTED_STATES
 from ..gps.geometry import enu_rotation, geodetic_to_ecef
 from ..iq import open_iq
 from ..receiver.acquisition import DopplerGrid, acquire

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pymap3d
 
-from ..defense.defended import TRUSTED_STATES
+from ..receiver.types import TRUSTED_STATES
 from ..iq.sigmf import build_sigmf_meta, sidecar_path, write_sigmf_meta
 
 GPS_SDR_SIM = "gps-sdr-sim"

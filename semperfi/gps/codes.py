@@ -65,3 +65,12 @@ def sampled_code(prn: int, fs_hz: float, n_samples: int, code_phase_chips: float
     """The +/-1 code sampled at fs, starting code_phase_chips into the code (the local replica)."""
     idx = np.floor(code_phase_chips + np.arange(n_samples) * (chip_rate_hz / fs_hz)).astype(np.int64)
     return ca_code(prn)[idx % CA_CODE_LENGTH_CHIPS]
+
+
+def chips_offset(a: float, b: float) -> float:
+    """Code phase a minus b, wrapped to (-511.5, 511.5] chips."""
+    return (a - b + CA_CODE_LENGTH_CHIPS / 2) % CA_CODE_LENGTH_CHIPS - CA_CODE_LENGTH_CHIPS / 2
+
+
+def chips_apart(a: float, b: float) -> float:
+    return abs(chips_offset(a, b))

@@ -296,6 +296,12 @@ class Channel:
             return None
         return int(idx[k]), float((sample - epochs[k]) / (epochs[k + 1] - epochs[k]))
 
+    def code_phase_at(self, sample: float) -> float | None:
+        """The code phase (chips) arriving at an absolute sample, between the code epochs around it; None when they
+        are not in the history."""
+        around = self.epoch_around(sample)
+        return None if around is None else around[1] * CA_CODE_LENGTH_CHIPS
+
     def transmit_time_at(self, sample: float, ms_ref: int, t_sv_ref_s: float) -> float | None:
         """Satellite time of the signal at an absolute sample index, given that code period ms_ref began at t_sv_ref.
 

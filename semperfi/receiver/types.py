@@ -19,6 +19,10 @@ class Observation:
     weight: float = 1.0       # relative weight for least squares (e.g. from C/N0 and elevation)
 
 
+# the states that call a fix good: a wrong position must never carry one of them
+TRUSTED_STATES = ("nominal", "recovered", "rectified")
+
+
 @dataclass(frozen=True)
 class Fix:
     """A position/velocity/time solution."""
@@ -38,7 +42,7 @@ class Fix:
     hdop: float
     vdop: float
     residual_rms_m: float
-    state: str = "nominal"    # nominal | spoofing_detected | recovering | recovered (the defence sets the others)
+    state: str = "nominal"    # nominal | unverified; the defence's: spoofing_detected | recovering | recovered | rectified
     raim: str = "unverifiable"  # pass | fail | excluded | unverifiable (integrity.py); only pass/excluded are trusted
     excluded_prns: tuple[int, ...] = ()   # ranges RAIM excluded from this fix
     test_statistic: float = float("nan")  # weighted residual sum of squares (chi-square distributed when clean)
