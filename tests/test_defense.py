@@ -484,3 +484,24 @@ def test_an_attacker_far_stronger_than_any_satellite_is_alarmed_at_once_and_reco
     state = "recovered" if rectify == "auto" else "rectified"
     assert last and np.mean(last) < 5.0 and fixes[-1]["state"] == state, (np.mean(last), fixes[-1]["state"])
 
+
+
+def test_a_15_db_attacker_on_every_prn_is_cancelled_without_cancelling_a_twin(tmp_path, brdc_path):
+    """+15 dB, synchronized, 1 km east, from the first sample, on all nine satellites in view: while some spoofers
+    are still to cancel, their multiple-access interference raises peaks in the cleaned signal of the PRNs already
+    cancelled, and the verification must not take one of them for a second spoofer and cancel the legitimate twin
+    that dominates where the two-path tracker holds it (it did: four PRNs given up after three SIC stages, no fix)."""
+    duration = 12.0
+    simulate(tmp_path / "a.bin", f'constellation.rinex="{brdc_path}"', 'time.start="2022-01-01T00:00:27"',
+             "attacker.enabled=true", "attacker.offset_east_m=1000.0", "attacker.power_advantage_db=15.0",
+             duration=duration)
+    summary, fixes, events, _ = _run_defended(tmp_path / "a.bin", tmp_path / "out", nav=str(brdc_path))
+    done = next(e for e in events if e["event"] == "defense_summary")
+    assert len(done["cancelled"]) >= 8 and not done["gave_up"], done
+    assert set(done["verified"]) == set(done["cancelled"]), done
+    assert all(e["stage"] == 0 for e in events if e["event"] == "sic_iteration"), "a second SIC stage on a twin"
+    called_good = [(f["t_rx_s"], round(_horizontal_m(f), 1)) for f in fixes
+                   if f["state"] in TRUSTED_STATES and _horizontal_m(f) > 10.0]
+    assert not called_good, called_good[:5]
+    last = [_horizontal_m(f) for f in fixes if float(f["t_rx_s"]) > duration - 4.0]
+    assert last and np.mean(last) < 3.0, (len(last), np.mean(last) if last else None)

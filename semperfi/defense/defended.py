@@ -7,12 +7,13 @@ from dataclasses import replace
 import numpy as np
 
 from ..gps.codes import chips_apart, chips_offset
-from ..gps.constants import CA_CHIP_RATE_HZ, L1_HZ
+from ..gps.constants import CA_CHIP_RATE_HZ, L1_HZ, SPEED_OF_LIGHT_M_S
 from ..receiver.chain import Receiver
 from ..receiver.integrity import trusted
 from ..receiver.types import Fix
 from .beat import WINDOW_MS as BEAT_WINDOW_MS, two_carriers
 from .canceller import JOINT_WITHIN_CHIPS
+from .continuity import Continuity
 from .guard import SpoofGuard
 from .maneuver_id import LinkedManeuver, ManeuverIdentifier
 from .rectifier import Rectifier
@@ -48,6 +49,10 @@ class DefendedReceiver:
         if self.guard.d["mode"] == "full" and self.guard.d["rectify"] != "off":
             self.inner.rectifier = Rectifier(self.guard.d["rectify"], week_hint)
         self._rectifying: set[int] = set()
+        # the INS carries the last nominal fix's ranges forward: which peak continues them (a takeover's spoofer
+        # leaves them); a maneuver's track from the flight link comes only after an alarm, too late to anchor
+        self.continuity = Continuity(fs_hz, self.guard.d["separation_ns"] * 1e-9 * SPEED_OF_LIGHT_M_S, imu_track) \
+            if imu_track is not None and self.guard.d["mode"] == "full" else None
         self.first_recovered_t_s: float | None = None
         self._next_beat_check = 0
 
@@ -70,8 +75,12 @@ class DefendedReceiver:
         cleaned = self.guard.push(chunk)
         if self.guard.alarm_t_s is not None and self.guard.d["mode"] == "full":
             # once the attack is known, fixes are built from resolved PRNs only, while enough of them remain
-            self.inner.excluded_prns = {p for p in self.inner.channels if not self.guard.resolved(p)}
             self._watch_twins()
+            if self.continuity is not None:
+                if self.continuity.anchor is None:
+                    self.continuity.freeze(self.guard.alarm_t_s)
+                self._identify_by_continuity()
+            self.inner.excluded_prns = {p for p in self.inner.channels if not self.guard.resolved(p)}
         if self.inner.rectifier is not None:
             self.inner.rectifier.update(self.guard.canceller)
         self.inner.feed(cleaned)
@@ -109,6 +118,28 @@ class DefendedReceiver:
                 offset = chips_offset(0.0, spoofer_chips)
                 if abs(offset) < TWIN_MEASURE_REACH_CHIPS:
                     tr.legit_offset_chips = offset
+
+    def _identify_by_continuity(self) -> None:
+        """A PRN whose cancelled peak was a guess is decided when exactly one of its two peaks -- the legitimate
+        channel's on the cleaned samples, the cancelled spoofer's -- continues the range of the last nominal fix."""
+        g = self.guard
+        for prn in sorted(g.guessed & set(g.cancel_started) & g.verified):
+            ch, tr = self.inner.channels.get(prn), g.canceller.stages[0].tracks.get(prn) if g.canceller.stages else None
+            if ch is None or ch.pull_in or tr is None or prn in g.gave_up:
+                continue
+            epoch = float(ch.epoch_sample[(ch.ms - 1) % ch.HISTORY_MS])
+            spoofer_chips = tr.channel.code_phase_at(epoch)
+            if spoofer_chips is None:
+                continue
+            legit = self.continuity.legitimate(prn, epoch, (0.0, spoofer_chips), self._predicted_chips)
+            if legit is not None:
+                g.identified_by_continuity(prn, cancelled_is_attacker=legit == 0, t_s=epoch / self.inner.fs_hz)
+
+    def _predicted_chips(self, prn: int, sample: float, fix: Fix, pos_ecef_m) -> float | None:
+        """The code phase a fix's clock predicts at a sample for a receiver at a position."""
+        eph = self.inner.ephemeris_at(prn, fix.gps_tow_s)
+        t_sv = None if eph is None else self.inner.predicted_transmit_time(eph, sample, fix, pos_ecef_m)
+        return None if t_sv is None else (t_sv * 1e3 % 1.0) * 1023.0
 
     def _check_beats(self) -> None:
         """Two carriers under a tracked peak (beat), on two PRNs or more (one, once the attack is known): a spoofer
@@ -158,6 +189,10 @@ class DefendedReceiver:
         self._note_rectified(rectified, fix.t_rx_s)
         if g.alarm_t_s is None:
             state = "nominal" if trusted(fix.raim) else "unverified"
+            if state == "nominal" and self.continuity is not None:
+                sample = fix.t_rx_s * self.inner.fs_hz
+                tracked = {p: self.inner.channels[p].code_phase_at(sample) for p in fix.prns if p in self.inner.channels}
+                self.continuity.note(fix, {p: c for p, c in tracked.items() if c is not None}, self._predicted_chips)
         elif g.d["mode"] != "full" or not all(g.resolved(p) or p in g.cancel_started for p in fix.prns):
             state = "spoofing_detected"
         else:

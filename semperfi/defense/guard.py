@@ -25,6 +25,7 @@ EXAMINE_NONCOHERENT = 20
 # a peak this far from a cancelled spoofer's code phase, or further, is not its residual (the acquisition's code phase
 # is good to a few hundredths of a chip on a dominant peak)
 TWIN_MIN_CHIPS = 0.15
+TWIN_MATCH_CHIPS = 0.25   # an examination's code phase (2 ms coherent, interpolated) against the tracked twin's
 EXAMINE_MAX_PEAKS = 16  # a strong spoofer's Doppler and code sidelobes are local maxima too: room for its twin
 
 
@@ -312,6 +313,10 @@ class SpoofGuard:
             caf, target, reason = cafs[prn], None, ""
             if caf.best is not None and self._still_dominates(prn, caf.best.code_phase_chips, first):
                 target, reason = caf.best, "the cancelled peak still dominates"
+            elif caf.best is not None and self._at_twin(prn, caf.best.code_phase_chips, first):
+                pass   # the legitimate twin dominates where the two-path tracker holds it: under a strong attacker
+                       # the spoofers still to cancel raise peaks (their multiple-access interference) that the
+                       # policy would pair with it, and 'the stronger is the attacker's' would then cancel the twin
             else:
                 pairs = auxiliary_peaks(caf, cafs, self.detector.cfg, self.fs_hz)
                 if pairs:
@@ -330,6 +335,16 @@ class SpoofGuard:
                 self._emit("cancellation_refused", t_s, prn=prn, reason=self.gave_up[prn])
             else:
                 self.pending_verify[prn] = (t_s + self.d["verify_after_s"], target, stage + 1)
+
+    def identified_by_continuity(self, prn: int, cancelled_is_attacker: bool, t_s: float) -> None:
+        """The continuity test decided a guessed PRN: the cancelled peak was the attacker's (no longer a guess), or
+        it was the legitimate one (the PRN is given up: what the receiver tracks there is the attacker's)."""
+        if cancelled_is_attacker:
+            self.guessed.discard(prn)
+        else:
+            self.gave_up[prn] = "the cancelled peak continues the ranges of the last nominal fix: it is the legitimate one"
+        self._emit("identification", t_s, verdicts=[{"prn": prn, "adversarial": cancelled_is_attacker, "decided": True,
+                                                     "reason": "continuity with the last nominal fix (INS)"}])
 
     def resolved(self, prn: int) -> bool:
         """Whether a PRN is known to carry the legitimate signal only: alarmed, cancelled and verified clean with its
@@ -379,6 +394,16 @@ class SpoofGuard:
                 tr.legit_offset_chips = offset
             twin = tr.legit_offset_chips
             if abs(offset) < 0.6 and (twin is None or abs(offset) <= abs(offset - twin)):
+                return True
+        return False
+
+    def _at_twin(self, prn: int, code_phase_chips: float, sample: int) -> bool:
+        """Whether a code phase (at an absolute sample) is where a cancelled spoofer's known legitimate twin is."""
+        for st in self.canceller.stages:
+            tr = st.tracks.get(prn)
+            spoofer_chips = tr.channel.code_phase_at(sample) if tr is not None else None
+            if spoofer_chips is not None and tr.legit_offset_chips is not None and \
+                    abs(chips_offset(code_phase_chips, spoofer_chips) - tr.legit_offset_chips) < TWIN_MATCH_CHIPS:
                 return True
         return False
 

@@ -287,16 +287,19 @@ class Receiver:
         eph = self._ephemeris(prn, t_sv)
         return None if eph is None else (t_sv, eph)
 
-    def predicted_transmit_time(self, eph, sample: float) -> float | None:
-        """The satellite time a signal received at a sample carries, predicted from the last fix's position and
-        clock (coarse time; None before the first fix). Good to the last fix's errors: a kilometre is 3 us."""
-        fix = self.last_fix
+    def predicted_transmit_time(self, eph, sample: float, fix: Fix | None = None,
+                                pos_ecef_m: np.ndarray | None = None) -> float | None:
+        """The satellite time a signal received at a sample carries, predicted from a fix's clock (the last fix by
+        default) for a position (the fix's by default): coarse time; None before the first fix. Good to the fix's
+        errors: a kilometre is 3 us."""
+        fix = self.last_fix if fix is None else fix
         if fix is None:
             return None
         dt_s = sample / self.fs_hz - fix.t_rx_s
         gps_s = fix.gps_tow_s + dt_s * (1.0 - fix.clock_drift_m_s / SPEED_OF_LIGHT_M_S)
+        pos = fix.pos_ecef_m if pos_ecef_m is None else pos_ecef_m
         _, t_tx, _, _ = light_time_range(lambda t: satellite_position(eph, t),
-                                         lambda t: satellite_position_velocity(eph, t), fix.pos_ecef_m, gps_s)
+                                         lambda t: satellite_position_velocity(eph, t), pos, gps_s)
         return float((t_tx + satellite_clock(eph, t_tx)[0]) % SECONDS_PER_WEEK)
 
     def _smoothed_m(self, ch: Channel, sample: float, pseudorange_m: float) -> float:

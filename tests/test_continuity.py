@@ -1,0 +1,86 @@
+"""The continuity identifier: which of a PRN's two peaks continues the range tracked before the alarm."""
+
+import numpy as np
+
+from semperfi.defense.continuity import ANCHOR_BEFORE_ALARM_S, CHIP_M, Continuity
+from semperfi.defense.identifier import ImuTrack
+from semperfi.gps.codes import chips_offset
+from semperfi.receiver.types import Fix
+
+FS = 1000.0
+ORIGIN = np.array([1530272.0, -4466812.0, 4273585.0])
+LOS = {5: np.array([0.6, 0.0, 0.8]), 9: np.array([-0.3, 0.9, 0.3])}
+ATMOSPHERE_M = {5: 7.0, 9: 12.0}   # what the fix's model leaves out of each range: calibrated away at the anchor
+
+
+def fix_at(t_s, drift_m_s=0.0):
+    return Fix(t_rx_s=t_s, gps_week=2190, gps_tow_s=1000.0 + t_s, pos_ecef_m=ORIGIN.copy(), vel_ecef_m_s=np.zeros(3),
+               clock_bias_m=0.0, clock_drift_m_s=drift_m_s, lat_deg=42.34, lon_deg=-71.09, height_m=10.0, n_sats=6,
+               prns=(5, 9), pdop=2.0, hdop=1.0, vdop=1.5, residual_rms_m=0.5)
+
+
+def predicted_chips(prn, sample, fix, pos_ecef_m):
+    """A toy range model: the position along the line of sight, the clock's drift since the fix."""
+    range_m = -LOS[prn] @ (pos_ecef_m - ORIGIN) + fix.clock_drift_m_s * (sample / FS - fix.t_rx_s)
+    return (100.0 + range_m / CHIP_M) % 1023.0
+
+
+def true_chips(prn, t_s, extra_m=0.0):
+    """Where the legitimate peak is: a static receiver, a clock without drift, the atmosphere, plus extra_m."""
+    return (100.0 + (ATMOSPHERE_M[prn] + extra_m) / CHIP_M) % 1023.0
+
+
+def anchored(alarm_t_s=10.0):
+    still = ImuTrack(np.array([0.0, 100.0]), np.zeros(2), np.zeros(2), np.zeros(2))
+    c = Continuity(FS, 150.0, still)
+    for t in np.arange(0.0, alarm_t_s, 0.5):
+        # the last fixes before the alarm: the parting spoofer pulls their Doppler, hence their clock drift
+        c.note(fix_at(t, 3.0 if t > alarm_t_s - 1.0 else 0.05), {p: true_chips(p, t) for p in LOS}, predicted_chips)
+    c.freeze(alarm_t_s)
+    return c
+
+
+def test_the_anchor_is_older_than_the_alarm_and_its_drift_is_the_median():
+    c = anchored()
+    assert c.anchor.fix.t_rx_s <= 10.0 - ANCHOR_BEFORE_ALARM_S and c.anchor.fix.t_rx_s == 8.0
+    assert c.anchor.fix.clock_drift_m_s == 0.05
+    assert all(abs(chips_offset(c.anchor.bias_chips[p], ATMOSPHERE_M[p] / CHIP_M)) < 1e-6 for p in LOS)
+
+
+def test_the_peak_inside_the_radius_is_the_legitimate_one():
+    c = anchored()
+    t = 30.0
+    assert 150.0 < c.radius_m(t * FS) < 200.0
+    for prn in LOS:
+        legit, spoofer = true_chips(prn, t, 1.0), true_chips(prn, t, 260.0)
+        assert c.legitimate(prn, t * FS, (legit, spoofer), predicted_chips) == 0
+        assert c.legitimate(prn, t * FS, (spoofer, legit), predicted_chips) == 1
+        # both inside (the spoofer has not left yet): nothing is decided, nor when neither is
+        assert c.legitimate(prn, t * FS, (legit, true_chips(prn, t, -90.0)), predicted_chips) is None
+        assert c.legitimate(prn, t * FS, (true_chips(prn, t, 400.0), spoofer), predicted_chips) is None
+
+
+def test_nothing_is_decided_without_an_anchor_or_once_the_radius_is_too_wide():
+    c = anchored(alarm_t_s=1.0)        # no nominal fix two seconds before the alarm
+    assert c.anchor is None
+    assert c.legitimate(5, 5.0 * FS, (true_chips(5, 5.0), true_chips(5, 5.0, 500.0)), predicted_chips) is None
+    c = anchored()
+    late = 400.0 * FS                  # the INS and the clock have drifted too far to tell
+    assert c.legitimate(5, late, (true_chips(5, 400.0), true_chips(5, 400.0, 900.0)), predicted_chips) is None
+
+
+def test_the_ins_displacement_moves_the_prediction():
+    flown = ImuTrack(np.array([0.0, 10.0, 40.0]), np.zeros(3), np.array([0.0, 0.0, 600.0]), np.zeros(3))
+    c = Continuity(FS, 150.0, flown)
+    for t in np.arange(0.0, 10.0, 0.5):
+        c.note(fix_at(t), {p: true_chips(p, t) for p in LOS}, predicted_chips)
+    c.freeze(10.0)
+    t = 40.0                           # 600 m east of the anchor: the legitimate range moved by -u . d
+    moved = c.predicted_position(t * FS) - ORIGIN
+    assert abs(np.linalg.norm(moved) - 600.0) < 1.0
+    verdicts = {}
+    for prn in LOS:
+        legit, left_behind = true_chips(prn, t, -LOS[prn] @ moved), true_chips(prn, t)
+        verdicts[prn] = c.legitimate(prn, t * FS, (legit, left_behind), predicted_chips)
+    # PRN 5 looks east (its range moved 340 m: the peak left behind is out of the radius); PRN 9 looks north
+    assert verdicts == {5: 0, 9: None}, verdicts
