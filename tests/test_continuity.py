@@ -84,3 +84,19 @@ def test_the_ins_displacement_moves_the_prediction():
         verdicts[prn] = c.legitimate(prn, t * FS, (legit, left_behind), predicted_chips)
     # PRN 5 looks east (its range moved 340 m: the peak left behind is out of the radius); PRN 9 looks north
     assert verdicts == {5: 0, 9: None}, verdicts
+
+
+def test_a_guess_continuity_confirms_is_resolved_and_one_it_refutes_is_given_up():
+    from semperfi.cli import _receiver_config
+    from semperfi.defense.guard import SpoofGuard
+    guard = SpoofGuard(_receiver_config(None, []), 2e6)
+    for prn in (5, 9):   # both cancelled on the stronger-peak guess and verified clean after it
+        guard.alarmed_prns.add(prn)
+        guard.cancel_started[prn] = 20.0
+        guard.verified.add(prn)
+        guard.guessed.add(prn)
+    assert not guard.resolved(5) and not guard.resolved(9)
+    guard.identified_by_continuity(5, cancelled_is_attacker=True, t_s=30.0)
+    guard.identified_by_continuity(9, cancelled_is_attacker=False, t_s=30.0)
+    assert guard.resolved(5)
+    assert not guard.resolved(9) and "legitimate" in guard.gave_up[9]

@@ -97,14 +97,8 @@ def test_a_seamless_takeover_from_another_generator_is_recovered_by_continuity_w
     then leaves east at 20 m/s, +3 dB; the vehicle's INS (a MEMS unit's drift) says it stayed. After the alarm, the
     peak each PRN's cancellation left is the one that continues the last nominal fix's range: the guesses become
     knowledge, PRN by PRN as the spoofer's peaks leave the 150 m radius, and the fixes end recovered."""
-    from semperfi.eval.flightpath import ins_track
-    from semperfi.eval.xgen import takeover_motion
-    from semperfi.flight.deadreckoning import write_track_csv
-    place, duration = PLACES["boston"], 42.0
-    motion = takeover_motion(place, 16.0, 20.0, duration, tmp_path / "takeover.csv")
-    t = np.arange(int(duration * 10) + 1) / 10.0
-    ins = write_track_csv(tmp_path / "ins.csv", t, ins_track(t, np.zeros((t.size, 3)), seed=7, accel_bias_mps2=0.002))
-    case = Case(place, 0.0, 3.0, duration_s=duration, spoof_motion=str(motion))
+    from semperfi.eval.xgen import takeover_case
+    case, ins = takeover_case(PLACES["boston"], 16.0, 20.0, 42.0, tmp_path)
     r = run_case(case, brdc_path, tmp_path, imu_csv=ins)
     print(r)
     events = [json.loads(line) for line in open(tmp_path / f"{case.tag}-full-imu" / "events.jsonl")]
@@ -112,6 +106,19 @@ def test_a_seamless_takeover_from_another_generator_is_recovered_by_continuity_w
     assert len(decided) >= 5 and all(v["adversarial"] for v in decided), decided
     assert r["called_good_but_wrong"] == 0, r
     assert r["last_state"] == "recovered" and r["last_mean_m"] < 2.0, r
+
+
+def test_a_dynamic_position_push_from_another_generator_is_recovered_along_the_flight(tmp_path, brdc_path):
+    """The paper's dynamic scenario: the receiver flies north at 5 m/s; the spoofer follows its path for 16 s, then
+    pushes it east at 20 m/s, +3 dB. The INS follows the flight; the fixes end recovered on the flown path, their
+    east and north deviation from it as small as on a static receiver (the paper: 10.1 m and 2.6 m)."""
+    from semperfi.eval.xgen import takeover_case
+    case, ins = takeover_case(PLACES["boston"], 16.0, 20.0, 42.0, tmp_path, receiver_m_s=5.0)
+    r = run_case(case, brdc_path, tmp_path, imu_csv=ins)
+    print(r)
+    assert r["called_good_but_wrong"] == 0, r
+    assert r["last_state"] == "recovered" and r["last_mean_m"] < 2.0, r
+    assert r["recovered_east_m"] < 2.0 and r["recovered_north_m"] < 2.0, r
 
 
 def test_the_rectifier_recovers_a_far_stronger_attacker_from_another_generator(tmp_path, brdc_path):

@@ -31,7 +31,7 @@ def write_motion_csv(path: Path, t_s: np.ndarray, ned_m: np.ndarray, lat_deg: fl
     origin = geodetic_to_ecef(np.radians(lat_deg), np.radians(lon_deg), height_m)
     enu = np.column_stack([ned_m[:, 1], ned_m[:, 0], -ned_m[:, 2]])
     ecef = origin + enu @ enu_rotation(np.radians(lat_deg), np.radians(lon_deg))
-    np.savetxt(path, np.column_stack([t_s, ecef]), fmt=["%.1f", "%.3f", "%.3f", "%.3f"], delimiter=",")
+    np.savetxt(path, np.column_stack([t_s, ecef]), fmt=["%.1f", "%.4f", "%.4f", "%.4f"], delimiter=",")
     return path
 
 

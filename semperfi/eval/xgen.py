@@ -19,7 +19,9 @@ from pathlib import Path
 import numpy as np
 import pymap3d
 
+from ..flight.deadreckoning import write_track_csv
 from ..receiver.types import TRUSTED_STATES
+from .flightpath import ins_track, write_motion_csv
 from ..iq.sigmf import build_sigmf_meta, sidecar_path, write_sigmf_meta
 
 GPS_SDR_SIM = "gps-sdr-sim"
@@ -127,17 +129,42 @@ def render(nav_path: str | Path, out: Path, place: Place, case: Case, motion: st
     return out
 
 
-def takeover_motion(place: Place, hold_s: float, speed_m_s: float, duration_s: float, out: Path,
-                    azimuth_deg: float = 90.0) -> Path:
-    """A seamless takeover's claimed trajectory (gps-sdr-sim -u, 10 Hz ECEF rows): at the receiver's own position for
-    hold_s (the spoofer's scene is then the legitimate one, sample for sample), then moving away along azimuth_deg."""
+def flown_path(duration_s: float, speed_m_s: float = 0.0, heading_deg: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """(t_s, ned_m (n, 3)) at 10 Hz: a straight flight at a constant speed (0: a static receiver)."""
     t_s = np.arange(int(round(duration_s * 10)) + 1) / 10.0
+    h = math.radians(heading_deg)
+    return t_s, np.column_stack([speed_m_s * t_s * math.cos(h), speed_m_s * t_s * math.sin(h), np.zeros_like(t_s)])
+
+
+def takeover_motion(place: Place, hold_s: float, speed_m_s: float, duration_s: float, out: Path,
+                    azimuth_deg: float = 90.0, receiver_ned: np.ndarray | None = None) -> Path:
+    """A seamless takeover's claimed trajectory (gps-sdr-sim -u, 10 Hz ECEF rows): the receiver's own path (static,
+    or receiver_ned from flown_path) for hold_s -- the spoofer's scene is then the legitimate one, sample for sample --
+    then pushed off it along azimuth_deg at speed_m_s (a dynamic position push when the receiver moves)."""
+    t_s, ned = flown_path(duration_s)
+    if receiver_ned is not None:
+        ned = ned + receiver_ned
     along = speed_m_s * np.clip(t_s - hold_s, 0.0, None)
     az = math.radians(azimuth_deg)
-    x, y, z = pymap3d.enu2ecef(along * math.sin(az), along * math.cos(az), 0.0, place.lat_deg, place.lon_deg,
-                               place.height_m)
-    np.savetxt(out, np.column_stack([t_s, x, y, z]), delimiter=",", fmt="%.1f,%.4f,%.4f,%.4f")
-    return out
+    ned = ned + np.column_stack([along * math.cos(az), along * math.sin(az), np.zeros_like(t_s)])
+    return write_motion_csv(out, t_s, ned, place.lat_deg, place.lon_deg, place.height_m)
+
+
+def takeover_case(place: Place, hold_s: float, push_m_s: float, duration_s: float, work: Path,
+                  advantage_db: float = 3.0, date: str = OWN_DATE, fs_hz: float = 2.6e6, receiver_m_s: float = 0.0,
+                  seed: int = 7) -> tuple[Case, Path]:
+    """A takeover (receiver_m_s 0) or a dynamic push (the receiver flies north at receiver_m_s) pushed east, and the
+    INS track of the receiver's flight (a MEMS unit's drift, seeded) for `semperfi run --imu`."""
+    t_s, ned = flown_path(duration_s, receiver_m_s)
+    stem = f"{hold_s:g}s-{push_m_s:g}mps-{duration_s:g}s" + (f"-fly{receiver_m_s:g}mps" if receiver_m_s else "")
+    motion = write_motion_csv(work / f"fly-{receiver_m_s:g}mps-{duration_s:g}s.csv", t_s, ned, place.lat_deg,
+                              place.lon_deg, place.height_m) if receiver_m_s else None
+    spoof = takeover_motion(place, hold_s, push_m_s, duration_s, work / f"takeover-{stem}.csv",
+                            receiver_ned=ned if receiver_m_s else None)
+    case = Case(place, 0.0, advantage_db, date=date, fs_hz=fs_hz, duration_s=duration_s,
+                motion=str(motion) if motion else "", spoof_motion=str(spoof))
+    ins = write_track_csv(work / f"ins-{case.tag}.csv", t_s, ins_track(t_s, ned, seed=seed, accel_bias_mps2=0.002))
+    return case, ins
 
 
 def noise_sigma(fs_hz: float, cn0_dbhz: float) -> float:
@@ -177,26 +204,35 @@ def horizontal_error_m(x_m: float, y_m: float, z_m: float, place: Place) -> floa
 
 
 def score(fixes_csv: Path, place: Place, last_s: float = 10.0, bad_m: float = 10.0, motion: str = "") -> dict:
-    """What a receiver made of a case: horizontal error over the last seconds, first fix, wrong fixes called good.
-    With a motion file the truth is the trajectory at each fix's time (10 Hz rows)."""
+    """What a receiver made of a case: horizontal error over the last seconds, first fix, wrong fixes called good,
+    and the mean east and north deviation (absolute) of the fixes called good while under attack (the paper's UTM
+    figure: recovered against legitimate path). With a motion file the truth is the trajectory at each fix's time
+    (10 Hz rows)."""
     rows = list(csv.DictReader(open(fixes_csv, newline="")))
+    if not rows:
+        return {"fixes": 0}
     t = np.array([float(r["t_rx_s"]) for r in rows])
     pos = np.array([[float(r[k]) for k in ("x_m", "y_m", "z_m")] for r in rows]).reshape(-1, 3)
     if motion:
         path = np.loadtxt(motion, delimiter=",", ndmin=2)
         pos = pos - path[np.clip(np.round(t / 0.1).astype(int), 0, len(path) - 1), 1:] + pymap3d.geodetic2ecef(
             place.lat_deg, place.lon_deg, place.height_m)
-    err = np.array([horizontal_error_m(*p, place) for p in pos])
+    east, north, _ = pymap3d.ecef2enu(pos[:, 0], pos[:, 1], pos[:, 2], place.lat_deg, place.lon_deg, place.height_m)
+    err = np.hypot(east, north)
     states = [r.get("state", "nominal") for r in rows]
-    if not rows:
-        return {"fixes": 0}
     last = t >= t[-1] - last_s
     good = np.array([s in TRUSTED_STATES for s in states])
-    return {"fixes": len(rows), "first_fix_s": round(float(t[0]), 1),
-            "last_mean_m": round(float(np.mean(err[last])), 2), "max_m": round(float(np.max(err)), 1),
-            "last_state": states[-1], "recovered": int(sum(s == "recovered" for s in states)),
-            "rectified": int(sum(s == "rectified" for s in states)),
-            "called_good_but_wrong": int(np.sum(good & (err > bad_m)))}
+    defended = np.array([s in ("recovered", "rectified") for s in states])
+    out = {"fixes": len(rows), "first_fix_s": round(float(t[0]), 1),
+           "last_mean_m": round(float(np.mean(err[last])), 2), "max_m": round(float(np.max(err)), 1),
+           "last_state": states[-1], "recovered": int(sum(s == "recovered" for s in states)),
+           "rectified": int(sum(s == "rectified" for s in states)),
+           "called_good_but_wrong": int(np.sum(good & (err > bad_m)))}
+    if defended.any():
+        out |= {"recovered_from_s": round(float(t[defended][0]), 1),
+                "recovered_east_m": round(float(np.mean(np.abs(east[defended]))), 2),
+                "recovered_north_m": round(float(np.mean(np.abs(north[defended]))), 2)}
+    return out
 
 
 def prepare(case: Case, nav_path: str | Path, work: Path) -> Path:
