@@ -86,17 +86,28 @@ def test_the_ins_displacement_moves_the_prediction():
     assert verdicts == {5: 0, 9: None}, verdicts
 
 
-def test_a_guess_continuity_confirms_is_resolved_and_one_it_refutes_is_given_up():
+def test_a_guess_continuity_confirms_is_resolved_and_one_it_refutes_is_swapped_then_given_up():
     from semperfi.cli import _receiver_config
-    from semperfi.defense.guard import SpoofGuard
+    from semperfi.defense.guard import MAX_SWAPS, SpoofGuard
     guard = SpoofGuard(_receiver_config(None, []), 2e6)
-    for prn in (5, 9):   # both cancelled on the stronger-peak guess and verified clean after it
+
+    def cancelled_on_a_guess(prn):   # cancelled on the stronger-peak guess and verified clean after it
         guard.alarmed_prns.add(prn)
+        guard.detector.alarmed.add(prn)
         guard.cancel_started[prn] = 20.0
         guard.verified.add(prn)
         guard.guessed.add(prn)
+
+    for prn in (5, 9):
+        cancelled_on_a_guess(prn)
     assert not guard.resolved(5) and not guard.resolved(9)
     guard.identified_by_continuity(5, cancelled_is_attacker=True, t_s=30.0)
-    guard.identified_by_continuity(9, cancelled_is_attacker=False, t_s=30.0)
     assert guard.resolved(5)
+    # the cancelled peak was the legitimate one: the cancellation is dropped and the PRN examined afresh
+    guard.identified_by_continuity(9, cancelled_is_attacker=False, t_s=30.0)
+    assert 9 not in guard.cancel_started and 9 not in guard.alarmed_prns and 9 not in guard.detector.alarmed
+    assert not guard.resolved(9) and 9 not in guard.gave_up
+    for _ in range(MAX_SWAPS):       # and if it keeps coming back to it, given up
+        cancelled_on_a_guess(9)
+        guard.identified_by_continuity(9, cancelled_is_attacker=False, t_s=31.0)
     assert not guard.resolved(9) and "legitimate" in guard.gave_up[9]

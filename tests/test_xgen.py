@@ -108,6 +108,23 @@ def test_a_seamless_takeover_from_another_generator_is_recovered_by_continuity_w
     assert r["last_state"] == "recovered" and r["last_mean_m"] < 2.0, r
 
 
+def test_a_weaker_takeover_whose_guess_cancelled_the_legitimate_signals_is_swapped_and_recovered(tmp_path, brdc_path):
+    """The same takeover 2 dB under the legitimate signals: the stronger-peak guess cancels the legitimate peak and
+    the receiver is left on the spoofer's. Continuity finds the cancelled peak to be the one that continues the
+    ranges of the last nominal fix: the cancellation is dropped, the pair examined afresh, the other peak cancelled
+    (not a guess), and the fixes end recovered; none called good while the receiver was on the spoofer."""
+    from semperfi.eval.xgen import takeover_case
+    case, ins = takeover_case(PLACES["boston"], 16.0, 20.0, 50.0, tmp_path, advantage_db=-2.0)
+    r = run_case(case, brdc_path, tmp_path, imu_csv=ins)
+    print(r)
+    events = [json.loads(line) for line in open(tmp_path / f"{case.tag}-full-imu" / "events.jsonl")]
+    refuted = {v["prn"] for e in events if e["event"] == "identification" for v in e["verdicts"] if not v["adversarial"]}
+    recancelled = {e["prn"] for e in events if e["event"] == "cancellation_start" and not e["guessed"]}
+    assert len(refuted) >= 5 and refuted <= recancelled, (refuted, recancelled)
+    assert r["called_good_but_wrong"] == 0, r
+    assert r["last_state"] == "recovered" and r["recovered_east_m"] < 2.0 and r["recovered_north_m"] < 2.0, r
+
+
 def test_a_dynamic_position_push_from_another_generator_is_recovered_along_the_flight(tmp_path, brdc_path):
     """The paper's dynamic scenario: the receiver flies north at 5 m/s; the spoofer follows its path for 16 s, then
     pushes it east at 20 m/s, +3 dB. The INS follows the flight; the fixes end recovered on the flown path, their

@@ -405,6 +405,11 @@ class Canceller:
             offset = chips_offset(legit_code_phase_chips, peak.code_phase_chips)
         return self.stages[stage].add(peak, peak_sample, offset)
 
+    def drop(self, prn: int) -> None:
+        """Stop cancelling a PRN in every stage (what was cancelled is found to be the legitimate signal)."""
+        for st in self.stages:
+            st.tracks.pop(prn, None)
+
     def push(self, chunk: np.ndarray) -> np.ndarray:
         """Samples in; cleaned samples out, in order, a little behind (each stage holds back a code period)."""
         out = np.asarray(chunk, dtype=np.complex64)

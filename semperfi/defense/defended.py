@@ -42,7 +42,8 @@ class DefendedReceiver:
             LinkedManeuver(flight_link, fs_hz, if_hz, ready=lambda: self.inner.last_fix is not None) \
             if flight_link is not None else None
         self.guard = SpoofGuard(cfg, fs_hz, if_hz, events, on_cancel=self._drop_if_tracking, maneuver=maneuver,
-                                nav_context=lambda: (self.inner.ephemeris_at, self.inner.last_fix))
+                                nav_context=lambda: (self.inner.ephemeris_at, self.inner.last_fix),
+                                continuing=self._continuing if imu_track is not None else None)
         self.inner = Receiver(cfg, fs_hz, if_hz, assisted, on_fix=self._label, events=events, week_hint=week_hint,
                               on_observations=on_observations)
         self.inner.min_sats_distrusting = 4 + self.guard.d["min_redundancy"]
@@ -77,8 +78,6 @@ class DefendedReceiver:
             # once the attack is known, fixes are built from resolved PRNs only, while enough of them remain
             self._watch_twins()
             if self.continuity is not None:
-                if self.continuity.anchor is None:
-                    self.continuity.freeze(self.guard.alarm_t_s)
                 self._identify_by_continuity()
             self.inner.excluded_prns = {p for p in self.inner.channels if not self.guard.resolved(p)}
         if self.inner.rectifier is not None:
@@ -131,9 +130,17 @@ class DefendedReceiver:
             spoofer_chips = tr.channel.code_phase_at(epoch)
             if spoofer_chips is None:
                 continue
-            legit = self.continuity.legitimate(prn, epoch, (0.0, spoofer_chips), self._predicted_chips)
+            legit = self._continuing(prn, epoch, (0.0, spoofer_chips))
             if legit is not None:
                 g.identified_by_continuity(prn, cancelled_is_attacker=legit == 0, t_s=epoch / self.inner.fs_hz)
+
+    def _continuing(self, prn: int, sample: float, chips: tuple[float, float]) -> int | None:
+        """Which of a pair's code phases (at an absolute sample) continues the last nominal fix's range."""
+        if self.continuity is None or self.guard.alarm_t_s is None:
+            return None
+        if self.continuity.anchor is None:
+            self.continuity.freeze(self.guard.alarm_t_s)
+        return self.continuity.legitimate(prn, sample, chips, self._predicted_chips)
 
     def _predicted_chips(self, prn: int, sample: float, fix: Fix, pos_ecef_m) -> float | None:
         """The code phase a fix's clock predicts at a sample for a receiver at a position."""

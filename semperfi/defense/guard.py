@@ -26,12 +26,13 @@ EXAMINE_NONCOHERENT = 20
 # is good to a few hundredths of a chip on a dominant peak)
 TWIN_MIN_CHIPS = 0.15
 TWIN_MATCH_CHIPS = 0.25   # an examination's code phase (2 ms coherent, interpolated) against the tracked twin's
+MAX_SWAPS = 2          # a PRN whose cancelled peak is found legitimate this often is given up
 EXAMINE_MAX_PEAKS = 16  # a strong spoofer's Doppler and code sidelobes are local maxima too: room for its twin
 
 
 class SpoofGuard:
     def __init__(self, cfg: dict, fs_hz: float, if_hz: float = 0.0, events=None, on_cancel=None, maneuver=None,
-                 nav_context=None, real_samples: bool = False):
+                 nav_context=None, real_samples: bool = False, continuing=None):
         """maneuver: a ManeuverIdentifier (an INS track with a maneuver in it), whose verdicts replace the policy's
         guesses; nav_context() -> (ephemeris_of(prn, tow_s), a recent fix) for its lines of sight.
         real_samples: the samples are real values at an IF (their output must stay real and free of both images)."""
@@ -63,6 +64,9 @@ class SpoofGuard:
         self.guessed: set[int] = set()
         self.extra_prns: set[int] = set()                # PRNs the user of the guard wants examined too
         self.maneuver, self.nav_context = maneuver, nav_context
+        # continuing(prn, sample, (chips_a, chips_b)) -> 0 | 1 | None: which of two code phases continues the range
+        # tracked before the attack (defense/continuity); a PRN whose cancelled peak it found legitimate is swapped
+        self.continuing, self.swapped = continuing, {}
         self.awaiting: dict[int, Alarm] = {}             # alarmed PRNs whose attacker's peak the maneuver will name
         self.attacker_stronger: bool | None = None       # what the maneuver showed of the attacker's power, if clear
         self.maneuver_legit: set[int] = set()            # PRNs whose only peak the maneuver showed to follow the motion
@@ -200,6 +204,12 @@ class SpoofGuard:
         choice = choose(alarm, self.policy, self.policy_prns)
         if choice is not None and choice.guessed and self.attacker_stronger is not None:
             choice = by_power(alarm, self.attacker_stronger, self._inference) or choice
+        if choice is not None and choice.guessed and self.continuing is not None:
+            pair = (alarm.pair.main, alarm.pair.auxiliary)
+            legit = self.continuing(alarm.prn, self._looked[1], tuple(p.code_phase_chips for p in pair))
+            if legit is not None:
+                choice = Choice(pair[1 - legit], pair[legit], False, "the other peak continues the ranges of the last "
+                                                                     "nominal fix (INS)")
         if choice is not None and choice.guessed and self.maneuver is not None and self.maneuver.pending(t_s):
             self.maneuver.request(t_s, alarm.prn)
             self.awaiting[alarm.prn] = alarm
@@ -341,8 +351,13 @@ class SpoofGuard:
         it was the legitimate one (the PRN is given up: what the receiver tracks there is the attacker's)."""
         if cancelled_is_attacker:
             self.guessed.discard(prn)
-        else:
+        elif self.swapped.get(prn, 0) >= MAX_SWAPS:
             self.gave_up[prn] = "the cancelled peak continues the ranges of the last nominal fix: it is the legitimate one"
+        else:   # stop cancelling it: examined afresh, the pair's peaks are told apart by the same test
+            self.swapped[prn] = self.swapped.get(prn, 0) + 1
+            self.canceller.drop(prn)
+            self.guessed.discard(prn)
+            self._forget(prn)
         self._emit("identification", t_s, verdicts=[{"prn": prn, "adversarial": cancelled_is_attacker, "decided": True,
                                                      "reason": "continuity with the last nominal fix (INS)"}])
 
@@ -372,12 +387,15 @@ class SpoofGuard:
         """A PRN whose every cancellation track lost the spoofer is examined afresh: alarmed again if the spoofer is
         still there (its verification no longer holds)."""
         for prn in [p for p in self.cancel_started if p not in self.canceller.prns]:
-            del self.cancel_started[prn]
-            self.verified.discard(prn)
-            self.pending_verify.pop(prn, None)
-            self.alarmed_prns.discard(prn)
-            self.detector.alarmed.discard(prn)
+            self._forget(prn)
             self._emit("cancellation_lost", t_s, prn=prn)
+
+    def _forget(self, prn: int) -> None:
+        del self.cancel_started[prn]
+        self.verified.discard(prn)
+        self.pending_verify.pop(prn, None)
+        self.alarmed_prns.discard(prn)
+        self.detector.alarmed.discard(prn)
 
     def _still_dominates(self, prn: int, code_phase_chips: float, sample: int) -> bool:
         """Whether the strongest peak left at a code phase (at an absolute sample) is what remains of a cancelled
