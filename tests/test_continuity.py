@@ -111,3 +111,37 @@ def test_a_guess_continuity_confirms_is_resolved_and_one_it_refutes_is_swapped_t
         cancelled_on_a_guess(9)
         guard.identified_by_continuity(9, cancelled_is_attacker=False, t_s=31.0)
     assert not guard.resolved(9) and "legitimate" in guard.gave_up[9]
+
+
+def test_known_prns_correct_the_prediction_of_a_drag_before_the_alarm():
+    """A spoofer dragged the tracked ranges 120 m east before the alarm (unseen: each range pulled less than the
+    separation), so the anchor sits 120 m off. Five PRNs known legitimate measure that; the sixth, whose spoofer's
+    peak is 110 m from its legitimate one, is decided once the correction applies, and not before."""
+    los = {p: v / np.linalg.norm(v) for p, v in {1: np.array([0.3, 0.2, 0.9]), 2: np.array([-0.7, 0.1, 0.7]),
+                                                3: np.array([0.1, -0.8, 0.6]), 4: np.array([0.6, 0.6, 0.5]),
+                                                5: np.array([-0.4, -0.5, 0.75]), 6: np.array([0.9, -0.1, 0.4])}.items()}
+    drag = np.array([0.0, 120.0, 0.0])   # ECEF metres, as good as any direction for the fit
+
+    def chips_at(prn, pos_ecef_m, clock_m=0.0):
+        return (300.0 + (los[prn] @ (pos_ecef_m - ORIGIN) + clock_m) / CHIP_M) % 1023.0
+
+    def predicted(prn, sample, fix, pos_ecef_m):
+        return chips_at(prn, pos_ecef_m)
+
+    still = ImuTrack(np.array([0.0, 100.0]), np.zeros(2), np.zeros(2), np.zeros(2))
+    c = Continuity(FS, 150.0, still)
+    for t in np.arange(0.0, 10.0, 0.5):
+        fix = fix_at(t)
+        fix = Fix(**{**fix.__dict__, "pos_ecef_m": ORIGIN + drag})        # the dragged anchor
+        c.note(fix, {p: chips_at(p, ORIGIN + drag) for p in los}, predicted)
+    c.freeze(10.0)
+    t = 20.0
+    legit, spoofer = chips_at(6, ORIGIN), chips_at(6, ORIGIN, 110.0)
+    assert c.legitimate(6, t * FS, (legit, spoofer), predicted) is None   # both within 150 m of the dragged anchor
+    c.refine(t * FS, {p: chips_at(p, ORIGIN) for p in (1, 2, 3, 4, 5)}, predicted)
+    assert c.correction is not None and np.allclose(c.correction[1][:3], -drag, atol=0.5), c.correction
+    assert c.legitimate(6, t * FS, (legit, spoofer), predicted) == 0
+    assert c.legitimate(6, t * FS, (spoofer, legit), predicted) == 1
+    # known PRNs that disagree with any one position and clock correct nothing
+    c.refine(t * FS, {**{p: chips_at(p, ORIGIN) for p in (1, 2, 3, 4)}, 5: chips_at(5, ORIGIN, 80.0)}, predicted)
+    assert c.correction is None

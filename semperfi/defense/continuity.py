@@ -10,6 +10,11 @@ nothing is decided.
 
 Each PRN's prediction is calibrated on its own tracked range at the anchor (atmosphere, the fix's residual), so
 what is carried forward is the range itself, not the fix's model of it.
+
+Once four PRNs or more are known to carry the legitimate signal only, what their ranges say of the prediction's
+error -- a drag before the alarm that moved the anchor, the INS's and the clock's drift since: a position and a clock
+offset, fitted by least squares -- corrects the prediction of the others, whose radius shrinks to what one range can
+be off unseen by the nominal fixes' integrity test, plus the atmosphere's change: REFINED_RADIUS_M.
 """
 
 from collections import deque
@@ -32,6 +37,10 @@ MAX_RADIUS_M = 1000.0      # past this the prediction tells nothing a fix does n
 # drift the median over the nominal fixes of DRIFT_OVER_S before it
 ANCHOR_BEFORE_ALARM_S = 2.0
 DRIFT_OVER_S = 10.0
+REFINED_RADIUS_M = 50.0
+REFINE_MAX_PDOP = 6.0      # the known PRNs' geometry must pin the position the correction carries
+REFINE_MAX_RMS_M = 15.0    # and, with one to spare, agree with one position and clock
+GRADIENT_STEP_M = 1.0
 
 
 @dataclass(frozen=True)
@@ -49,6 +58,7 @@ class Continuity:
         self.fs_hz, self.separation_m, self.ins = fs_hz, separation_m, ins
         self.anchor: Anchor | None = None
         self._nominal: deque[Anchor] = deque()
+        self.correction: tuple[float, np.ndarray] | None = None   # (sample, [ECEF position offset m, clock m])
 
     def note(self, fix: Fix, tracked_chips: dict[int, float], predicted_chips) -> None:
         """A nominal fix before any alarm, a candidate anchor. tracked_chips: each PRN's code phase at the fix's
@@ -86,17 +96,55 @@ class Continuity:
         enu = np.array([d_ned[1], d_ned[0], -d_ned[2]])
         return a.fix.pos_ecef_m + enu @ enu_rotation(np.radians(a.fix.lat_deg), np.radians(a.fix.lon_deg))
 
+    def _predicted(self, prn: int, sample: float, predicted_chips) -> tuple[float, np.ndarray] | None:
+        """(calibrated code phase, unit line of sight) for the INS-carried position; the line of sight is the
+        prediction's own gradient (a metre toward the satellite is a metre less range)."""
+        a = self.anchor
+        pos = self.predicted_position(sample)
+        pred = predicted_chips(prn, sample, a.fix, pos)
+        if pred is None:
+            return None
+        steps = [predicted_chips(prn, sample, a.fix, pos + GRADIENT_STEP_M * e) for e in np.eye(3)]
+        u = np.array([chips_offset(c, pred) * CHIP_M / GRADIENT_STEP_M for c in steps])
+        return pred + a.bias_chips[prn], u
+
+    def refine(self, sample: float, legit_chips: dict[int, float], predicted_chips) -> None:
+        """Known-legitimate PRNs' code phases at a sample: the prediction's position and clock error, fitted."""
+        self.correction = None
+        if self.anchor is None:
+            return
+        rows, r = [], []
+        for prn, chips in legit_chips.items():
+            got = self._predicted(prn, sample, predicted_chips) if prn in self.anchor.bias_chips else None
+            if got is not None:
+                rows.append([*got[1], 1.0])
+                r.append(chips_offset(chips, got[0]) * CHIP_M)
+        if len(r) < 4:
+            return
+        h, r = np.array(rows), np.array(r)
+        x, *_ = np.linalg.lstsq(h, r, rcond=None)
+        pdop = float(np.sqrt(np.trace(np.linalg.pinv(h.T @ h)[:3, :3])))
+        if pdop > REFINE_MAX_PDOP or (len(r) > 4 and np.sqrt(np.mean((r - h @ x) ** 2)) > REFINE_MAX_RMS_M):
+            return
+        self.correction = (sample, x)
+
     def legitimate(self, prn: int, sample: float, peaks_chips: tuple[float, float], predicted_chips) -> int | None:
         """Which of two code phases (at an absolute sample) is the legitimate signal's: 0 or 1, or None when both
         or neither lie within the radius of the prediction, or there is nothing to predict from."""
         a = self.anchor
         if a is None or prn not in a.bias_chips:
             return None
-        radius = self.radius_m(sample)
-        if radius > MAX_RADIUS_M:
+        got = self._predicted(prn, sample, predicted_chips)
+        if got is None:
             return None
-        pred = predicted_chips(prn, sample, a.fix, self.predicted_position(sample))
-        if pred is None:
-            return None
-        inside = [abs(chips_offset(c, pred + a.bias_chips[prn])) * CHIP_M <= radius for c in peaks_chips]
+        expected, u = got
+        if self.correction is not None:
+            at, x = self.correction
+            expected += (u @ x[:3] + x[3]) / CHIP_M
+            radius = REFINED_RADIUS_M + CLOCK_WANDER_M_S * abs(sample - at) / self.fs_hz
+        else:
+            radius = self.radius_m(sample)
+            if radius > MAX_RADIUS_M:
+                return None
+        inside = [abs(chips_offset(c, expected)) * CHIP_M <= radius for c in peaks_chips]
         return inside.index(True) if sum(inside) == 1 else None

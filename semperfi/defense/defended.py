@@ -122,6 +122,13 @@ class DefendedReceiver:
         """A PRN whose cancelled peak was a guess is decided when exactly one of its two peaks -- the legitimate
         channel's on the cleaned samples, the cancelled spoofer's -- continues the range of the last nominal fix."""
         g = self.guard
+        known = {p: ch for p, ch in self.inner.channels.items() if g.resolved(p) and not ch.pull_in and ch.ms > 1}
+        if len(known) >= 4 and self._anchored():
+            # a code period before the oldest latest epoch: every channel has epochs on both sides of it
+            sample = min(float(ch.epoch_sample[(ch.ms - 1) % ch.HISTORY_MS]) for ch in known.values()) - \
+                self.inner.fs_hz * 1e-3
+            chips = {p: ch.code_phase_at(sample) for p, ch in known.items()}
+            self.continuity.refine(sample, {p: c for p, c in chips.items() if c is not None}, self._predicted_chips)
         for prn in sorted(g.guessed & set(g.cancel_started) & g.verified):
             ch, tr = self.inner.channels.get(prn), g.canceller.stages[0].tracks.get(prn) if g.canceller.stages else None
             if ch is None or ch.pull_in or tr is None or prn in g.gave_up:
@@ -136,11 +143,17 @@ class DefendedReceiver:
 
     def _continuing(self, prn: int, sample: float, chips: tuple[float, float]) -> int | None:
         """Which of a pair's code phases (at an absolute sample) continues the last nominal fix's range."""
-        if self.continuity is None or self.guard.alarm_t_s is None:
+        if not self._anchored():
             return None
+        return self.continuity.legitimate(prn, sample, chips, self._predicted_chips)
+
+    def _anchored(self) -> bool:
+        """Whether continuity has an anchor (chosen at the first call after the alarm)."""
+        if self.continuity is None or self.guard.alarm_t_s is None:
+            return False
         if self.continuity.anchor is None:
             self.continuity.freeze(self.guard.alarm_t_s)
-        return self.continuity.legitimate(prn, sample, chips, self._predicted_chips)
+        return self.continuity.anchor is not None
 
     def _predicted_chips(self, prn: int, sample: float, fix: Fix, pos_ecef_m) -> float | None:
         """The code phase a fix's clock predicts at a sample for a receiver at a position."""
@@ -198,7 +211,9 @@ class DefendedReceiver:
             state = "nominal" if trusted(fix.raim) else "unverified"
             if state == "nominal" and self.continuity is not None:
                 sample = fix.t_rx_s * self.inner.fs_hz
-                tracked = {p: self.inner.channels[p].code_phase_at(sample) for p in fix.prns if p in self.inner.channels}
+                # every locked channel, not only the fix's: one below the mask or still without its own time has a
+                # range to carry forward too
+                tracked = {p: ch.code_phase_at(sample) for p, ch in self.inner.channels.items() if not ch.pull_in}
                 self.continuity.note(fix, {p: c for p, c in tracked.items() if c is not None}, self._predicted_chips)
         elif g.d["mode"] != "full" or not all(g.resolved(p) or p in g.cancel_started for p in fix.prns):
             state = "spoofing_detected"

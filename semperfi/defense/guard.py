@@ -348,18 +348,21 @@ class SpoofGuard:
 
     def identified_by_continuity(self, prn: int, cancelled_is_attacker: bool, t_s: float) -> None:
         """The continuity test decided a guessed PRN: the cancelled peak was the attacker's (no longer a guess), or
-        it was the legitimate one (the PRN is given up: what the receiver tracks there is the attacker's)."""
+        it was the legitimate one -- what the receiver tracks there is the attacker's: the cancellation is dropped
+        and the PRN examined afresh (its next alarm is decided by the same test), given up after MAX_SWAPS."""
         if cancelled_is_attacker:
             self.guessed.discard(prn)
         elif self.swapped.get(prn, 0) >= MAX_SWAPS:
             self.gave_up[prn] = "the cancelled peak continues the ranges of the last nominal fix: it is the legitimate one"
-        else:   # stop cancelling it: examined afresh, the pair's peaks are told apart by the same test
+        else:
             self.swapped[prn] = self.swapped.get(prn, 0) + 1
             self.canceller.drop(prn)
             self.guessed.discard(prn)
             self._forget(prn)
+        then = "known" if cancelled_is_attacker else "given up" if prn in self.gave_up else "cancellation dropped"
         self._emit("identification", t_s, verdicts=[{"prn": prn, "adversarial": cancelled_is_attacker, "decided": True,
-                                                     "reason": "continuity with the last nominal fix (INS)"}])
+                                                     "reason": "continuity with the last nominal fix (INS)",
+                                                     "then": then}])
 
     def resolved(self, prn: int) -> bool:
         """Whether a PRN is known to carry the legitimate signal only: alarmed, cancelled and verified clean with its
