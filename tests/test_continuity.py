@@ -35,8 +35,8 @@ def anchored(alarm_t_s=10.0):
     c = Continuity(FS, 150.0, still)
     for t in np.arange(0.0, alarm_t_s, 0.5):
         # the last fixes before the alarm: the parting spoofer pulls their Doppler, hence their clock drift
-        c.note(fix_at(t, 3.0 if t > alarm_t_s - 1.0 else 0.05), {p: true_chips(p, t) for p in LOS}, predicted_chips)
-    c.freeze(alarm_t_s)
+        c.note(fix_at(t, 3.0 if t > alarm_t_s - 1.0 else 0.05), {p: true_chips(p, t) for p in LOS})
+    c.freeze(alarm_t_s, predicted_chips)
     return c
 
 
@@ -73,8 +73,8 @@ def test_the_ins_displacement_moves_the_prediction():
     flown = ImuTrack(np.array([0.0, 10.0, 40.0]), np.zeros(3), np.array([0.0, 0.0, 600.0]), np.zeros(3))
     c = Continuity(FS, 150.0, flown)
     for t in np.arange(0.0, 10.0, 0.5):
-        c.note(fix_at(t), {p: true_chips(p, t) for p in LOS}, predicted_chips)
-    c.freeze(10.0)
+        c.note(fix_at(t), {p: true_chips(p, t) for p in LOS})
+    c.freeze(10.0, predicted_chips)
     t = 40.0                           # 600 m east of the anchor: the legitimate range moved by -u . d
     moved = c.predicted_position(t * FS) - ORIGIN
     assert abs(np.linalg.norm(moved) - 600.0) < 1.0
@@ -133,8 +133,8 @@ def test_known_prns_correct_the_prediction_of_a_drag_before_the_alarm():
     for t in np.arange(0.0, 10.0, 0.5):
         fix = fix_at(t)
         fix = Fix(**{**fix.__dict__, "pos_ecef_m": ORIGIN + drag})        # the dragged anchor
-        c.note(fix, {p: chips_at(p, ORIGIN + drag) for p in los}, predicted)
-    c.freeze(10.0)
+        c.note(fix, {p: chips_at(p, ORIGIN + drag) for p in los})
+    c.freeze(10.0, predicted)
     t = 20.0
     legit, spoofer = chips_at(6, ORIGIN), chips_at(6, ORIGIN, 110.0)
     assert c.legitimate(6, t * FS, (legit, spoofer), predicted) is None   # both within 150 m of the dragged anchor

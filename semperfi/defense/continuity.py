@@ -57,33 +57,32 @@ class Continuity:
         ins: the vehicle's dead-reckoned track, receiver time."""
         self.fs_hz, self.separation_m, self.ins = fs_hz, separation_m, ins
         self.anchor: Anchor | None = None
-        self._nominal: deque[Anchor] = deque()
+        self._nominal: deque[tuple[Fix, dict[int, float], np.ndarray]] = deque()   # (fix, tracked chips, INS pos)
         self.correction: tuple[float, np.ndarray] | None = None   # (sample, [ECEF position offset m, clock m])
 
-    def note(self, fix: Fix, tracked_chips: dict[int, float], predicted_chips) -> None:
-        """A nominal fix before any alarm, a candidate anchor. tracked_chips: each PRN's code phase at the fix's
-        sample; predicted_chips(prn, sample, fix, pos_ecef_m) -> the code phase the fix predicts (None without
-        ephemeris)."""
+    def note(self, fix: Fix, tracked_chips: dict[int, float]) -> None:
+        """A nominal fix before any alarm, a candidate anchor, with each locked channel's code phase at its sample."""
+        self._nominal.append((fix, tracked_chips, self.ins.position_at(np.array([fix.t_rx_s]))[0]))
+        while fix.t_rx_s - self._nominal[0][0].t_rx_s > DRIFT_OVER_S + ANCHOR_BEFORE_ALARM_S:
+            self._nominal.popleft()
+
+    def freeze(self, alarm_t_s: float, predicted_chips) -> None:
+        """The attack is known: the anchor is the last nominal fix ANCHOR_BEFORE_ALARM_S before the alarm (none if
+        there is none), with the clock drift of the fixes before it, each PRN calibrated on its tracked code phase.
+        predicted_chips(prn, sample, fix, pos_ecef_m) -> the code phase a fix predicts (None without ephemeris)."""
+        before = [n for n in self._nominal if n[0].t_rx_s <= alarm_t_s - ANCHOR_BEFORE_ALARM_S]
+        self._nominal.clear()
+        if not before:
+            return
+        fix, tracked_chips, ins_ned_m = before[-1]
+        drift = float(np.median([f.clock_drift_m_s for f, _, _ in before if fix.t_rx_s - f.t_rx_s <= DRIFT_OVER_S]))
         sample = fix.t_rx_s * self.fs_hz
         bias = {}
         for prn, chips in tracked_chips.items():
             pred = predicted_chips(prn, sample, fix, fix.pos_ecef_m)
             if pred is not None:
                 bias[prn] = chips_offset(chips, pred)
-        self._nominal.append(Anchor(fix, sample, bias, self.ins.position_at(np.array([fix.t_rx_s]))[0]))
-        while fix.t_rx_s - self._nominal[0].fix.t_rx_s > DRIFT_OVER_S + ANCHOR_BEFORE_ALARM_S:
-            self._nominal.popleft()
-
-    def freeze(self, alarm_t_s: float) -> None:
-        """The attack is known: the anchor is the last nominal fix ANCHOR_BEFORE_ALARM_S before the alarm (none if
-        there is none), with the clock drift of the fixes before it."""
-        before = [a for a in self._nominal if a.fix.t_rx_s <= alarm_t_s - ANCHOR_BEFORE_ALARM_S]
-        self._nominal.clear()
-        if before:
-            a = before[-1]
-            drift = float(np.median([b.fix.clock_drift_m_s for b in before
-                                     if a.fix.t_rx_s - b.fix.t_rx_s <= DRIFT_OVER_S]))
-            self.anchor = replace(a, fix=replace(a.fix, clock_drift_m_s=drift))
+        self.anchor = Anchor(replace(fix, clock_drift_m_s=drift), sample, bias, ins_ned_m)
 
     def radius_m(self, sample: float) -> float:
         dt_s = (sample - self.anchor.sample) / self.fs_hz

@@ -31,6 +31,12 @@ TWIN_MEASURE_REACH_CHIPS = JOINT_WITHIN_CHIPS + 0.5   # a twin measured this far
 BEAT_CHECK_S = 0.25
 
 
+def _code_phases(channels: dict, sample: float) -> dict[int, float]:
+    """Each channel's code phase at an absolute sample, for those whose history holds it."""
+    chips = {prn: ch.code_phase_at(sample) for prn, ch in channels.items()}
+    return {prn: c for prn, c in chips.items() if c is not None}
+
+
 class DefendedReceiver:
     def __init__(self, cfg: dict, fs_hz: float, if_hz: float = 0.0, assisted=None, on_fix=None, events=None,
                  week_hint: int | None = None, imu_track=None, on_observations=None, flight_link=None):
@@ -109,14 +115,11 @@ class DefendedReceiver:
         """The legitimate channel, tracking the cleaned samples, says where the twin is: its latest code epoch
         against the spoofer's code phase at that sample. The canceller's two-path fit, weak on a twin much weaker
         than its spoofer and within half a chip, drifts away from it on its own."""
-        epoch = float(ch.epoch_sample[(ch.ms - 1) % ch.HISTORY_MS])
-        for st in self.guard.canceller.stages:
-            tr = st.tracks.get(prn)
-            spoofer_chips = None if tr is None or tr.legit_offset_chips is None else tr.channel.code_phase_at(epoch)
-            if spoofer_chips is not None:
-                offset = chips_offset(0.0, spoofer_chips)
-                if abs(offset) < TWIN_MEASURE_REACH_CHIPS:
-                    tr.legit_offset_chips = offset
+        epoch = ch.latest_epoch_sample
+        for tr, spoofer_chips in self.guard.spoofers_at(prn, epoch):
+            offset = chips_offset(0.0, spoofer_chips)
+            if tr.legit_offset_chips is not None and abs(offset) < TWIN_MEASURE_REACH_CHIPS:
+                tr.legit_offset_chips = offset
 
     def _identify_by_continuity(self) -> None:
         """A PRN whose cancelled peak was a guess is decided when exactly one of its two peaks -- the legitimate
@@ -125,15 +128,14 @@ class DefendedReceiver:
         known = {p: ch for p, ch in self.inner.channels.items() if g.resolved(p) and not ch.pull_in and ch.ms > 1}
         if len(known) >= 4 and self._anchored():
             # a code period before the oldest latest epoch: every channel has epochs on both sides of it
-            sample = min(float(ch.epoch_sample[(ch.ms - 1) % ch.HISTORY_MS]) for ch in known.values()) - \
+            sample = min(ch.latest_epoch_sample for ch in known.values()) - \
                 self.inner.fs_hz * 1e-3
-            chips = {p: ch.code_phase_at(sample) for p, ch in known.items()}
-            self.continuity.refine(sample, {p: c for p, c in chips.items() if c is not None}, self._predicted_chips)
+            self.continuity.refine(sample, _code_phases(known, sample), self._predicted_chips)
         for prn in sorted(g.guessed & set(g.cancel_started) & g.verified):
             ch, tr = self.inner.channels.get(prn), g.canceller.stages[0].tracks.get(prn) if g.canceller.stages else None
             if ch is None or ch.pull_in or tr is None or prn in g.gave_up:
                 continue
-            epoch = float(ch.epoch_sample[(ch.ms - 1) % ch.HISTORY_MS])
+            epoch = ch.latest_epoch_sample
             spoofer_chips = tr.channel.code_phase_at(epoch)
             if spoofer_chips is None:
                 continue
@@ -152,7 +154,7 @@ class DefendedReceiver:
         if self.continuity is None or self.guard.alarm_t_s is None:
             return False
         if self.continuity.anchor is None:
-            self.continuity.freeze(self.guard.alarm_t_s)
+            self.continuity.freeze(self.guard.alarm_t_s, self._predicted_chips)
         return self.continuity.anchor is not None
 
     def _predicted_chips(self, prn: int, sample: float, fix: Fix, pos_ecef_m) -> float | None:
@@ -186,7 +188,7 @@ class DefendedReceiver:
         ch = self.inner.channels.get(prn)
         if ch is None or ch.ms == 0:
             return
-        epoch = float(ch.epoch_sample[(ch.ms - 1) % ch.HISTORY_MS])
+        epoch = ch.latest_epoch_sample
         step = CA_CHIP_RATE_HZ * (1.0 + peak.doppler_hz / L1_HZ) / self.inner.fs_hz
         adversary_there = (peak.code_phase_chips + (epoch - peak_sample) * step) % 1023.0
         if chips_apart(adversary_there, 0.0) < 0.6:
@@ -213,8 +215,8 @@ class DefendedReceiver:
                 sample = fix.t_rx_s * self.inner.fs_hz
                 # every locked channel, not only the fix's: one below the mask or still without its own time has a
                 # range to carry forward too
-                tracked = {p: ch.code_phase_at(sample) for p, ch in self.inner.channels.items() if not ch.pull_in}
-                self.continuity.note(fix, {p: c for p, c in tracked.items() if c is not None}, self._predicted_chips)
+                locked = {p: ch for p, ch in self.inner.channels.items() if not ch.pull_in}
+                self.continuity.note(fix, _code_phases(locked, sample))
         elif g.d["mode"] != "full" or not all(g.resolved(p) or p in g.cancel_started for p in fix.prns):
             state = "spoofing_detected"
         else:

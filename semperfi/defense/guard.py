@@ -405,11 +405,7 @@ class SpoofGuard:
         spoofer: within 0.6 chip of it, and not the legitimate twin, known or surfacing. A twin found now within
         JOINT_WITHIN_CHIPS (a strong attacker's hid it until cancelled) is handed to the track: the two-path tracker
         follows both from then on."""
-        for st in self.canceller.stages:
-            tr = st.tracks.get(prn)
-            spoofer_chips = tr.channel.code_phase_at(sample) if tr is not None else None
-            if spoofer_chips is None:
-                continue
+        for tr, spoofer_chips in self.spoofers_at(prn, sample):
             offset = chips_offset(code_phase_chips, spoofer_chips)
             if tr.legit_offset_chips is None and TWIN_MIN_CHIPS < abs(offset) < JOINT_WITHIN_CHIPS:
                 tr.legit_offset_chips = offset
@@ -420,13 +416,17 @@ class SpoofGuard:
 
     def _at_twin(self, prn: int, code_phase_chips: float, sample: int) -> bool:
         """Whether a code phase (at an absolute sample) is where a cancelled spoofer's known legitimate twin is."""
+        return any(tr.legit_offset_chips is not None and
+                   abs(chips_offset(code_phase_chips, spoofer_chips) - tr.legit_offset_chips) < TWIN_MATCH_CHIPS
+                   for tr, spoofer_chips in self.spoofers_at(prn, sample))
+
+    def spoofers_at(self, prn: int, sample: float):
+        """(track, the cancelled spoofer's code phase) at an absolute sample, for each of a PRN's tracks that holds it."""
         for st in self.canceller.stages:
             tr = st.tracks.get(prn)
             spoofer_chips = tr.channel.code_phase_at(sample) if tr is not None else None
-            if spoofer_chips is not None and tr.legit_offset_chips is not None and \
-                    abs(chips_offset(code_phase_chips, spoofer_chips) - tr.legit_offset_chips) < TWIN_MATCH_CHIPS:
-                return True
-        return False
+            if spoofer_chips is not None:
+                yield tr, spoofer_chips
 
     def finish(self) -> None:
         """At the end of the stream: what the canceller achieved, and what was given up."""

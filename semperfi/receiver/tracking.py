@@ -284,6 +284,11 @@ class Channel:
     def ms_of_bit(self, bit_index: int) -> int:
         return self.bits.edge_ms + 20 * bit_index
 
+    @property
+    def latest_epoch_sample(self) -> float:
+        """The absolute sample of the latest code epoch tracked (where this channel's code phase is 0)."""
+        return float(self.epoch_sample[(self.ms - 1) % self.HISTORY_MS])
+
     def epoch_around(self, sample: float) -> tuple[int, float] | None:
         """(ms index j, fraction) with code epoch j at or before the sample and epoch j + 1 after it."""
         lo = max(self.ms - self.HISTORY_MS + 1, 0)
