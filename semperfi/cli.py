@@ -51,7 +51,26 @@ def _window_options(command):
     return command
 
 
-@click.group()
+class _OneLineGroup(click.Group):
+    """Whatever escapes a command is one line on stderr and an exit code, never a traceback: a SemperFi error says
+    what went wrong (its own code), a bug is an internal error (70)."""
+
+    def invoke(self, ctx):
+        from .errors import InternalError, SemperFiError, describe
+        try:
+            return super().invoke(ctx)
+        except (click.exceptions.ClickException, click.exceptions.Exit, click.exceptions.Abort):
+            raise
+        except SemperFiError as exc:
+            click.echo(f"semperfi: error: {exc}", err=True)
+            sys.exit(exc.exit_code)
+        except Exception as exc:
+            what = describe(exc)
+            click.echo(f"semperfi: internal error: {what['error']} (at {what['where']})", err=True)
+            sys.exit(InternalError.exit_code)
+
+
+@click.group(cls=_OneLineGroup)
 @click.version_option(__version__)
 def main() -> None:
     """SemperFi: a spoofer-eliminating GPS L1 C/A receiver, and the world it is proven against."""
@@ -202,8 +221,7 @@ def run(file, fs_hz, fmt, iq_swap, if_hz, nav_path, out_dir, config_path, defens
     except (ValueError, OSError) as exc:
         _fail(str(exc))
     _print_run_summary(summary)
-    if summary.input_error:
-        _fail(f"input failed after {summary.duration_s:.1f} s (outputs kept): {summary.input_error}")
+    _fail_after(summary)
 
 
 @main.command()
@@ -239,8 +257,18 @@ def clean(file, out_path, fs_hz, fmt, iq_swap, if_hz, adversarial, config_path, 
         click.echo(f"  PRN {prn:>2}: attenuation {', '.join(map(str, last)) or 'not yet measured'} dB (per SIC stage)")
     if s.gave_up:
         click.echo(f"  gave up on: {s.gave_up}", err=True)
-    if s.input_error:
-        _fail(f"input failed after {s.duration_s:.1f} s (the cleaned samples before it are written): {s.input_error}")
+    _fail_after(s)
+
+
+def _fail_after(summary) -> None:
+    """A run or clean that stopped part-way: one line, and the exit code that says why (outputs are kept)."""
+    from .errors import InternalError
+    if summary.internal_error:
+        click.echo(f"semperfi: internal error after {summary.duration_s:.1f} s of input (outputs kept, the event in "
+                   f"the event log): {summary.internal_error}", err=True)
+        sys.exit(InternalError.exit_code)
+    if summary.input_error:
+        _fail(f"input failed after {summary.duration_s:.1f} s (outputs kept): {summary.input_error}")
 
 
 def _read_key(path) -> bytes:

@@ -5,6 +5,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .. import config
+from ..errors import log_internal_error
 from ..iq import GR_COMPLEX, IBYTE, ISHORT, IqWriter
 from ..iq.source import SourceError, chunk_seconds, open_source
 from ..receiver.outputs import EventLog
@@ -23,6 +24,7 @@ class CleanSummary:
     attenuation_db: dict
     clipped_fraction: float
     input_error: str | None = None
+    internal_error: str | None = None
 
 
 def clean_file(in_path, out_path, fmt, fs_hz, if_hz, cfg: dict, events_path=None, progress: bool = False,
@@ -38,7 +40,7 @@ def clean_file(in_path, out_path, fmt, fs_hz, if_hz, cfg: dict, events_path=None
     out_path.parent.mkdir(parents=True, exist_ok=True)
     events_path = Path(events_path) if events_path else out_path.with_suffix(".events.jsonl")
     t0 = time.perf_counter()
-    input_error = None
+    input_error = internal_error = None
     with EventLog(events_path) as events, IqWriter(
             out_path, _output_format(source), source.fs_hz, if_hz=source.if_hz,
             metadata={"cleaned_from": source.name, "configuration": config.dumps_toml(cfg),
@@ -58,15 +60,20 @@ def clean_file(in_path, out_path, fmt, fs_hz, if_hz, cfg: dict, events_path=None
         except SourceError as exc:
             input_error = str(exc)
             events.emit("input_lost", source.n_samples / source.fs_hz, error=input_error)
+        except Exception as exc:   # a bug: never a traceback; the samples cleaned so far are kept
+            internal_error = log_internal_error(events, source.n_samples / source.fs_hz, exc)
         finally:   # whatever happened, the samples already cleaned reach the file, in order
             source.close()
-            writer.write(guard.flush())
-            guard.finish()
+            try:
+                writer.write(guard.flush())
+                guard.finish()
+            except Exception as exc:
+                internal_error = internal_error or log_internal_error(events, source.n_samples / source.fs_hz, exc)
         clipped = writer.clipped_fraction
     return CleanSummary(out_path, source.n_samples / source.fs_hz, time.perf_counter() - t0,
                         tuple(sorted(guard.alarmed_prns)), tuple(sorted(guard.cancel_started)),
                         tuple(sorted(guard.verified)), dict(guard.gave_up), guard.canceller.report(), clipped,
-                        input_error)
+                        input_error, internal_error)
 
 
 def _output_format(source):

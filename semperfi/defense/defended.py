@@ -7,7 +7,8 @@ from dataclasses import replace
 import numpy as np
 
 from ..gps.codes import chips_apart, chips_offset
-from ..gps.constants import CA_CHIP_RATE_HZ, L1_HZ, SPEED_OF_LIGHT_M_S
+from ..gps.constants import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, L1_HZ, SPEED_OF_LIGHT_M_S
+from ..receiver.acquisition import Peak
 from ..receiver.chain import Receiver
 from ..receiver.integrity import trusted
 from ..receiver.types import Fix
@@ -16,6 +17,7 @@ from .canceller import JOINT_WITHIN_CHIPS
 from .continuity import Continuity
 from .guard import SpoofGuard
 from .maneuver_id import LinkedManeuver, ManeuverIdentifier
+from .policy import POWER_MARGIN_DB
 from .rectifier import Rectifier
 
 
@@ -29,6 +31,14 @@ BIASED_WITHIN_CHIPS = 0.6
 TWIN_SPACING_CHIPS = 0.1   # the early-late spacing of a legitimate channel with a spoofer within a chip
 TWIN_MEASURE_REACH_CHIPS = JOINT_WITHIN_CHIPS + 0.5   # a twin measured this far off has left the two-path tracker
 BEAT_CHECK_S = 0.25
+# a PRN released by the verdict for a fresh look is alarmed and decided again within a few looks: its standby waits
+STANDBY_GRACE_S = 10.0
+# a standby channel follows the peak the chain does not, while a verdict is awaited: with its early-late pair 0.2 chip
+# apart, a neighbour more than 1.2 chip away (its correlation a triangle a chip wide) does not pull it; closer pairs
+# are left to the canceller's two-path tracker after the verdict (a standby found that close is not promoted)
+STANDBY_SPACING_CHIPS = 0.2
+STANDBY_MIN_SEPARATION_CHIPS = JOINT_WITHIN_CHIPS
+STANDBY_APART_CHIPS = 0.5
 
 
 def _code_phases(channels: dict, sample: float) -> dict[int, float]:
@@ -47,7 +57,7 @@ class DefendedReceiver:
         maneuver = ManeuverIdentifier(imu_track, fs_hz, if_hz) if imu_track is not None else \
             LinkedManeuver(flight_link, fs_hz, if_hz, ready=lambda: self.inner.last_fix is not None) \
             if flight_link is not None else None
-        self.guard = SpoofGuard(cfg, fs_hz, if_hz, events, on_cancel=self._drop_if_tracking, maneuver=maneuver,
+        self.guard = SpoofGuard(cfg, fs_hz, if_hz, events, on_cancel=self._on_cancel, maneuver=maneuver,
                                 nav_context=lambda: (self.inner.ephemeris_at, self.inner.last_fix),
                                 continuing=self._continuing if imu_track is not None else None)
         self.inner = Receiver(cfg, fs_hz, if_hz, assisted, on_fix=self._label, events=events, week_hint=week_hint,
@@ -56,6 +66,7 @@ class DefendedReceiver:
         if self.guard.d["mode"] == "full" and self.guard.d["rectify"] != "off":
             self.inner.rectifier = Rectifier(self.guard.d["rectify"], week_hint)
         self._rectifying: set[int] = set()
+        self._standby_until: dict[int, float] = {}   # PRN -> the sample its standby channel is kept to
         # the INS carries the last nominal fix's ranges forward: which peak continues them (a takeover's spoofer
         # leaves them); a maneuver's track from the flight link comes only after an alarm, too late to anchor
         self.continuity = Continuity(fs_hz, self.guard.d["separation_ns"] * 1e-9 * SPEED_OF_LIGHT_M_S, imu_track) \
@@ -89,6 +100,8 @@ class DefendedReceiver:
         if self.inner.rectifier is not None:
             self.inner.rectifier.update(self.guard.canceller)
         self.inner.feed(cleaned)
+        if self.guard.d["mode"] == "full":
+            self._follow_hypotheses()
         if self.guard.d["mode"] != "off" and self.inner.stats.samples >= self._next_beat_check:
             self._next_beat_check = self.inner.stats.samples + int(BEAT_CHECK_S * self.inner.fs_hz)
             self._check_beats()
@@ -180,19 +193,87 @@ class DefendedReceiver:
         self.inner.feed(self.guard.flush())
         self.guard.finish()
 
-    def _drop_if_tracking(self, prn: int, peak, peak_sample: int) -> None:
-        """If the conventional chain is locked on the attacker's peak, let it find the legitimate one.
+    def _follow_hypotheses(self) -> None:
+        """While a PRN awaits the maneuver's verdict, the chain tracks one of its two peaks and a standby channel the
+        other, bit-synchronised and decoding its own time and ephemeris: whichever the verdict names legitimate is
+        ready at once, not re-acquired and read again for tens of seconds. A standby that slid onto the chain's peak
+        follows nothing of its own and goes."""
+        inner, g = self.inner, self.guard
+        for prn in list(inner.standby):
+            ch, sb = inner.channels.get(prn), inner.standby[prn]
+            if prn in g.awaiting:
+                self._standby_until[prn] = inner.stats.samples + STANDBY_GRACE_S * inner.fs_hz
+            if inner.stats.samples > self._standby_until.get(prn, 0) or prn in g.cancel_started or g.resolved(prn):
+                inner.drop_standby(prn, "no verdict awaited")
+            elif ch is not None and not sb.pull_in and self._same_peak(ch, sb):
+                inner.drop_standby(prn, "on the same peak as the channel")
+        if g.attacker_stronger is not None and g.look_sample is not None:
+            self._decide_by_power()
+        for prn, (main, aux, sample) in g.awaiting_pairs.items():
+            ch = inner.channels.get(prn)
+            if prn in inner.standby or ch is None or ch.pull_in:
+                continue
+            here = ch.code_phase_at(sample)
+            if here is None or chips_apart(main.code_phase_chips, aux.code_phase_chips) < STANDBY_MIN_SEPARATION_CHIPS:
+                continue
+            on_main = chips_apart(here, main.code_phase_chips) <= chips_apart(here, aux.code_phase_chips)
+            other = aux if on_main else main
+            if chips_apart(here, other.code_phase_chips) >= STANDBY_MIN_SEPARATION_CHIPS:
+                inner.start_standby(prn, other.code_phase_chips, sample, other.doppler_hz, STANDBY_SPACING_CHIPS)
+
+    def _decide_by_power(self) -> None:
+        """A PRN the verdict released for a fresh look, its two peaks still followed (the chain's channel and the
+        standby), is decided at once by the power relation the maneuver established: the stronger channel is the
+        attacker's if the attacker was the stronger."""
+        inner, g = self.inner, self.guard
+        for prn, sb in list(inner.standby.items()):
+            ch = inner.channels.get(prn)
+            if ch is None or ch.pull_in or sb.pull_in or prn in g.awaiting or prn in g.cancel_started:
+                continue
+            gap_db = float(ch.cn0_dbhz - sb.cn0_dbhz)
+            if not abs(gap_db) >= POWER_MARGIN_DB:
+                continue
+            adv, legit = (ch, sb) if (gap_db > 0) == g.attacker_stronger else (sb, ch)
+            sample = g.look_sample
+            g.cancel_by_power(prn, self._peak_of(adv, sample), self._peak_of(legit, sample), sample / inner.fs_hz)
+
+    def _peak_of(self, ch, sample: int) -> Peak:
+        """A channel's signal as a peak at an absolute sample (its code carried from its latest epoch)."""
+        step = CA_CHIP_RATE_HZ * (1.0 + ch.doppler_at(0) / L1_HZ) / self.inner.fs_hz
+        chips = ((sample - ch.latest_epoch_sample) * step) % CA_CODE_LENGTH_CHIPS
+        return Peak(ch.prn, float(chips), ch.doppler_at(0), 0.0, float(ch.cn0_dbhz))
+
+    def _same_peak(self, a, b) -> bool:
+        """Whether two channels of a PRN track the same peak: their code phases a code period before the older of
+        their latest epochs (both histories hold it)."""
+        sample = min(a.latest_epoch_sample, b.latest_epoch_sample) - self.inner.fs_hz * 1e-3
+        pa, pb = a.code_phase_at(sample), b.code_phase_at(sample)
+        return pa is not None and pb is not None and chips_apart(pa, pb) < STANDBY_APART_CHIPS
+
+    def _on_cancel(self, prn: int, peak, peak_sample: int) -> None:
+        """A peak of a PRN is being cancelled: if the chain tracks it, its standby channel (on the other peak) takes
+        over at once, else the chain searches for the legitimate one; a standby on the cancelled peak goes.
 
         The chain runs on cleaned samples, a little behind the raw ones the peak was found in: the peak's code
-        phase is carried to the channel's latest code epoch (where the channel's own code phase is 0)."""
-        ch = self.inner.channels.get(prn)
-        if ch is None or ch.ms == 0:
-            return
+        phase is carried to each channel's latest code epoch (where the channel's own code phase is 0)."""
+        inner = self.inner
+        sb = inner.standby.get(prn)
+        if sb is not None and sb.ms > 0 and self._chips_from_peak(sb, peak, peak_sample) < STANDBY_MIN_SEPARATION_CHIPS:
+            # on the cancelled peak, or near enough that the spoofer pulled its loop: the two-path tracker's turn
+            inner.drop_standby(prn, "within a chip of the peak under cancellation")
+            sb = None
+        ch = inner.channels.get(prn)
+        if ch is not None and ch.ms > 0 and self._chips_from_peak(ch, peak, peak_sample) < 0.6:
+            if sb is None or not inner.promote(prn, "the peak it tracked is being cancelled"):
+                inner.drop_channel(prn, "tracking the peak under cancellation")
+        elif ch is None and sb is not None:
+            inner.promote(prn, "the PRN had no channel")
+
+    def _chips_from_peak(self, ch, peak, peak_sample: int) -> float:
+        """How far (chips) a channel is from a peak, at its latest code epoch."""
         epoch = ch.latest_epoch_sample
         step = CA_CHIP_RATE_HZ * (1.0 + peak.doppler_hz / L1_HZ) / self.inner.fs_hz
-        adversary_there = (peak.code_phase_chips + (epoch - peak_sample) * step) % 1023.0
-        if chips_apart(adversary_there, 0.0) < 0.6:
-            self.inner.drop_channel(prn, "tracking the peak under cancellation")
+        return chips_apart((peak.code_phase_chips + (epoch - peak_sample) * step) % CA_CODE_LENGTH_CHIPS, 0.0)
 
     def _label(self, fix: Fix) -> None:
         """What a fix is built on. Before any alarm it is nominal when its ranges pass the integrity test (RAIM),

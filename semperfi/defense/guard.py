@@ -9,7 +9,7 @@ Used in front of the receiver chain (DefendedReceiver) and on its own as the plu
 import numpy as np
 
 from ..gps.codes import chips_offset
-from ..receiver.acquisition import DopplerGrid, acquire
+from ..receiver.acquisition import DopplerGrid, Peak, acquire
 from .canceller import JOINT_WITHIN_CHIPS, Canceller, CancellerConfig, caf_amplitude, refine_peak
 from .detector import Alarm, DetectorConfig, SpoofingDetector, auxiliary_peaks, examinable
 from .power import implausible_peaks
@@ -68,6 +68,8 @@ class SpoofGuard:
         # tracked before the attack (defense/continuity); a PRN whose cancelled peak it found legitimate is swapped
         self.continuing, self.swapped = continuing, {}
         self.awaiting: dict[int, Alarm] = {}             # alarmed PRNs whose attacker's peak the maneuver will name
+        # the awaiting PRNs' two peaks at the latest look: (main, auxiliary, the absolute sample their code phases hold)
+        self.awaiting_pairs: dict[int, tuple] = {}
         self.attacker_stronger: bool | None = None       # what the maneuver showed of the attacker's power, if clear
         self.maneuver_legit: set[int] = set()            # PRNs whose only peak the maneuver showed to follow the motion
         self._inference = ""
@@ -163,6 +165,16 @@ class SpoofGuard:
             self._alarm(alarm.prn, t_s, alarm.pair.as_event())
             if self.d["mode"] == "full":
                 self._on_alarm(alarm, t_s)
+        self._note_awaiting_pairs(cafs, first)
+
+    def _note_awaiting_pairs(self, cafs: dict, first: int) -> None:
+        """Where the two peaks of each PRN awaiting a verdict are now (the receiver follows both until it comes)."""
+        self.awaiting_pairs = {p: v for p, v in self.awaiting_pairs.items() if p in self.awaiting}
+        for prn in self.awaiting:
+            caf = cafs.get(prn)
+            pairs = auxiliary_peaks(caf, cafs, self.detector.cfg, self.fs_hz) if caf is not None and caf.best else []
+            if pairs:
+                self.awaiting_pairs[prn] = (pairs[0].main, pairs[0].auxiliary, first)
 
     def _check_power(self, cafs: dict, t_s: float) -> None:
         """Peaks received stronger than any satellite's signal can be are the attacker's: alarm and cancel them
@@ -269,15 +281,46 @@ class SpoofGuard:
                                f"the {'stronger' if self.attacker_stronger else 'weaker'}")
         for prn, alarm in list(self.awaiting.items()):
             del self.awaiting[prn]
-            adv, legit = decided.get(prn, (None, None))
+            adv, legit, reason = self._verdict_pair(prn, decided, flagged, ident.followers)
             adv_now, legit_now = (adv.peak_at(now), legit.peak_at(now)) if adv is not None else (None, None)
             if adv_now is not None and legit_now is not None:
-                self._start_cancelling(prn, t_s, Choice(adv_now, legit_now, False, "maneuver: the other peak "
-                                                          "follows the vehicle's motion, this one does not"))
+                self._start_cancelling(prn, t_s, Choice(adv_now, legit_now, False, reason))
             else:   # examined afresh: its peaks have moved since the alarm
                 self.alarmed_prns.discard(prn)
                 self.detector.alarmed.discard(prn)
                 self.detector.streak[prn] = 0
+
+    def _verdict_pair(self, prn: int, decided: dict, flagged: dict, followers: dict):
+        """(the attacker's follower, the legitimate one's, why) for an awaiting PRN at the verdict, or Nones: decided
+        by the maneuver (both peaks, or the one shown not to follow), else by the power relation the maneuver
+        established on the others -- at once, not at a later alarm, so that the receiver never waits for it."""
+        if prn in decided:
+            return (*decided[prn], "maneuver: the other peak follows the vehicle's motion, this one does not")
+        if prn in flagged:
+            return (*flagged[prn], "maneuver: this peak does not follow the vehicle's motion")
+        pair = followers.get((prn, 0)), followers.get((prn, 1))
+        if self.attacker_stronger is None or None in pair:
+            return None, None, ""
+        gap_db = pair[0].mean_cn0_dbhz() - pair[1].mean_cn0_dbhz()
+        if not abs(gap_db) >= POWER_MARGIN_DB:   # NaN too: no power relation to apply
+            return None, None, ""
+        adv = 0 if (gap_db > 0) == self.attacker_stronger else 1
+        return pair[adv], pair[1 - adv], self._inference
+
+    def cancel_by_power(self, prn: int, adversarial: Peak, legitimate: Peak, t_s: float) -> None:
+        """A PRN the verdict left to a fresh look, decided now by the power relation the maneuver established (the
+        receiver's two channels on it say which peak is the stronger); the peaks' code phases hold at the latest
+        look's first sample."""
+        if self.attacker_stronger is None or prn in self.cancel_started or prn in self.gave_up or prn in self.awaiting:
+            return
+        self.alarmed_prns.add(prn)
+        self.detector.alarmed.add(prn)
+        self._start_cancelling(prn, t_s, Choice(adversarial, legitimate, False, self._inference))
+
+    @property
+    def look_sample(self) -> int | None:
+        """The absolute sample where the latest look's code phases hold (None before the first look)."""
+        return None if self._looked is None else self._looked[1]
 
     def _start_cancelling(self, prn: int, t_s: float, choice: Choice | None) -> None:
         if choice is None:

@@ -57,6 +57,16 @@ class Rectifier:
             if soft.size:
                 dec.push_bits(soft, first)
 
+    @property
+    def week(self) -> int | None:
+        """The GPS week from any spoofer's subframe 1 (a stealthy attacker keeps the navigation data)."""
+        return next((dec.week for dec in self._decoders.values() if dec.week is not None), None)
+
+    def ephemeris(self, prn: int):
+        """A spoofer's decoded ephemeris of a PRN (provisional: a stealthy attacker keeps the navigation data)."""
+        return next((dec.ephemeris for tr, dec in self._decoders.items()
+                     if tr.prn == prn and dec.ephemeris is not None), None)
+
     def wants(self, prn: int, has_own_time: bool) -> bool:
         """Whether a channel's range is to be rectified: always (mode always), or when it cannot say its own
         transmit time (auto); only for PRNs whose spoofer is being followed."""

@@ -403,12 +403,26 @@ def subframe_bits(k: int, ephemeris: Ephemeris, iono: IonoParams, utc: UtcParams
                            tlm_message=tlm_message, integrity=integrity)
 
 
+def full_week(week_mod_1024: int, full_week_hint: int | None = None) -> int:
+    """The full GPS week of a broadcast 10-bit week number: the one nearest full_week_hint, or without a hint the one
+    in the era that began 2019-04-07 (week 2048)."""
+    wn = int(week_mod_1024)
+    return 2048 + wn if full_week_hint is None else full_week_hint + (wn - full_week_hint + 512) % 1024 - 512
+
+
+def week_of_subframe1(sf: DecodedSubframe, full_week_hint: int | None = None) -> int:
+    """The full GPS week a subframe 1 with good parity says (ValueError for any other subframe)."""
+    if sf.subframe_id != 1 or sf.parity_errors:
+        raise ValueError(f"the week is in subframe 1 with good parity, not subframe {sf.subframe_id} "
+                         f"with {sf.parity_errors} parity errors")
+    return full_week(unpack(page_layout(1), sf.payload)["week_mod_1024"], full_week_hint)
+
+
 def ephemeris_from_subframes(sf1: DecodedSubframe, sf2: DecodedSubframe, sf3: DecodedSubframe, prn: int,
                              full_week_hint: int | None = None) -> Ephemeris:
     """The ephemeris that subframes 1, 2, 3 of one upload carry (IODE of 2 and 3 = IODC mod 256).
 
-    The 10-bit week number becomes the full week nearest full_week_hint, or without a hint the one in the era that
-    began 2019-04-07 (week 2048).
+    The 10-bit week number becomes a full week as full_week resolves it.
     """
     for n, sf in enumerate((sf1, sf2, sf3), start=1):
         if sf.subframe_id != n or sf.parity_errors:
@@ -418,8 +432,7 @@ def ephemeris_from_subframes(sf1: DecodedSubframe, sf2: DecodedSubframe, sf3: De
     if not orbit2["iode"] == orbit3["iode"] == clock["iodc"] % 256:
         raise ValueError(f"subframes of different uploads: IODC {clock['iodc']}, IODE {orbit2['iode']} and "
                          f"{orbit3['iode']}")
-    wn = clock["week_mod_1024"]
-    week = 2048 + wn if full_week_hint is None else full_week_hint + (wn - full_week_hint + 512) % 1024 - 512
+    week = full_week(clock["week_mod_1024"], full_week_hint)
     names = {f.name for f in dataclasses.fields(Ephemeris)}
     values = {name: value for name, value in {**clock, **orbit2, **orbit3}.items() if name in names}
     return Ephemeris(prn=prn, week=week, **values)

@@ -3,7 +3,7 @@ observables -> PVT, with every step reported as an event and every fix written a
 """
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -12,7 +12,7 @@ from ..gps.geometry import light_time_range
 from ..gps.constants import L1_WAVELENGTH_M, SECONDS_PER_WEEK, SPEED_OF_LIGHT_M_S
 from ..gps.time import GpsTime, wrap_week_s
 from .acquisition import Caf, DopplerGrid, acquire, is_cross_correlation
-from .navigation import AssistedNav, NavDecoder
+from .navigation import ASSIST_MAX_AGE_S, AssistedNav, NavDecoder
 from .pvt import solve
 from .rinex_obs import ObsEpoch
 from .integrity import IntegrityConfig, SigmaModel
@@ -20,6 +20,7 @@ from .tracking import NEXT_SAMPLE, Channel, LoopConfig, initial_state
 from .workers import run_each
 from .types import Fix, Observation
 
+EPHEMERIS_AGREE_M = 5.0      # two uploads' ephemerides agree to about a metre; further apart, one is not genuine
 TYPICAL_FLIGHT_S = 0.075       # first guess of the signals' travel time, to start the receiver clock
 # Klobuchar coefficients to use until subframe 4 page 18 (broadcast every 12.5 min) has been decoded: RTKLIB's
 # defaults, a typical set; far better than no ionosphere model at all.
@@ -92,6 +93,13 @@ class Receiver:
         # a supervisor's pseudorange rectifier (defense.rectifier.Rectifier), and the PRNs it timed at the last epoch
         self.rectifier = None
         self.rectified_prns: set[int] = set()
+        # standby channels: another signal of a PRN that a supervisor wants tracked and decoded beside the channel in
+        # use, while it decides which of the two is the satellite's; promote() makes one the PRN's channel at once
+        self.standby: dict[int, Channel] = {}
+        self.standby_decoders: dict[int, NavDecoder] = {}
+        # ephemerides decoded on a PRN's earlier channels (a spoofer's peak, in a stealthy attack the same data),
+        # used until the PRN's own decoder has one: a replaced channel must not wait 30 s for subframes 1-3
+        self.provisional_ephemerides: dict[int, object] = {}
 
     # -- events ---------------------------------------------------------------------------------------------
     def _emit(self, kind: str, t_rx_s: float, **fields) -> None:
@@ -155,7 +163,8 @@ class Receiver:
         if end >= self._next_acq_sample and self._buf.size >= self.acq_samples:
             self._acquire()
             self._next_acq_sample = end + int(self.cfg["acquisition"]["reacquire_s"] * self.fs_hz)
-        run_each(lambda ch: ch.process(self._buf, self._base), self.channels.values())
+        run_each(lambda ch: ch.process(self._buf, self._base), [*self.channels.values(), *self.standby.values()])
+        self._decode_standby()
         for prn, ch in list(self.channels.items()):
             self._decode(prn, ch)
             twin = self._cross_talk_source(prn, ch)
@@ -205,14 +214,60 @@ class Receiver:
         return None
 
     def drop_channel(self, prn: int, reason: str) -> None:
-        """Stop tracking a PRN (and forget what its decoder read) and search for it again at once."""
+        """Stop tracking a PRN (its decoder's ephemeris is kept provisionally) and search for it again at once."""
         if prn in self.channels:
             t_s = (self._base + self._buf.size) / self.fs_hz
             self._emit("channel_dropped", t_s, prn=prn, reason=reason)
             del self.channels[prn]
-        self.decoders.pop(prn, None)
+        self._keep_ephemeris(prn, self.decoders.pop(prn, None))
         self.warm.pop(prn, None)
         self._next_acq_sample = min(self._next_acq_sample, self._base + self._buf.size + self.acq_samples)
+
+    def _keep_ephemeris(self, prn: int, decoder: NavDecoder | None) -> None:
+        if decoder is not None and decoder.ephemeris is not None:
+            self.provisional_ephemerides[prn] = decoder.ephemeris
+
+    # -- standby channels (a supervisor's second hypothesis) ----------------------------------------------------
+    def start_standby(self, prn: int, code_phase_chips: float, peak_sample: float, doppler_hz: float,
+                      spacing_chips: float) -> None:
+        """Track and decode another signal of a PRN (a peak at code_phase_chips at an absolute sample) beside its
+        channel, from the oldest sample still held, with an early-late spacing narrow enough to hold it apart from a
+        neighbour more than a chip away."""
+        st = initial_state(code_phase_chips, peak_sample, doppler_hz, self.fs_hz, self._base)
+        cfg = replace(self.loop, spacing_chips=min(spacing_chips, self.loop.spacing_chips))
+        self.standby[prn] = Channel(prn, self.fs_hz, self.if_hz, st, cfg)
+        self.standby_decoders[prn] = NavDecoder(prn, self._week)
+        self._emit("standby_start", self._base / self.fs_hz, prn=prn, code_phase_chips=round(code_phase_chips, 4),
+                   doppler_hz=round(doppler_hz, 1))
+
+    def drop_standby(self, prn: int, reason: str) -> None:
+        if self.standby.pop(prn, None) is not None:
+            self.standby_decoders.pop(prn, None)
+            self._emit("standby_dropped", (self._base + self._buf.size) / self.fs_hz, prn=prn, reason=reason)
+
+    def promote(self, prn: int, reason: str) -> bool:
+        """The standby channel becomes the PRN's channel, with what it has decoded (the one it replaces leaves its
+        ephemeris behind, provisionally); False when there is none or it has lost lock."""
+        ch = self.standby.pop(prn, None)
+        dec = self.standby_decoders.pop(prn, None)
+        if ch is None or not ch.locked:
+            return False
+        self._keep_ephemeris(prn, self.decoders.get(prn))
+        self.channels[prn], self.decoders[prn] = ch, dec
+        self.warm.pop(prn, None)
+        self._emit("channel_promoted", (self._base + self._buf.size) / self.fs_hz, prn=prn, reason=reason,
+                   bit_sync=ch.bits.edge_ms is not None, tow=dec.time_anchor is not None,
+                   ephemeris=dec.ephemeris is not None)
+        return True
+
+    def _decode_standby(self) -> None:
+        for prn, ch in list(self.standby.items()):
+            if not ch.locked:
+                self.drop_standby(prn, "lost lock")
+                continue
+            soft, first = ch.take_bits()
+            if soft.size:
+                self.standby_decoders[prn].push_bits(soft, first)
 
     def _decode(self, prn: int, ch: Channel) -> None:
         if ch.bits.edge_ms is not None and prn not in self.stats.confirmed:
@@ -232,19 +287,40 @@ class Receiver:
         if dec.iono is not None and self.iono is None:
             self.iono, self.utc = dec.iono, dec.utc
             self._emit("iono_utc", ch.st[NEXT_SAMPLE] / self.fs_hz, prn=prn)
-        if dec.ephemeris is not None and self._week is None:
-            self._week = dec.ephemeris.week
+        if self._week is None and dec.week is not None:
+            self._week = dec.week
+        if dec.ephemeris is not None and prn in self.provisional_ephemerides:
+            self._check_provisional(prn, dec.ephemeris, ch.st[NEXT_SAMPLE] / self.fs_hz)
+
+    def _check_provisional(self, prn: int, own, t_s: float) -> None:
+        """The PRN's own ephemeris replaces the provisional one; where the two put the satellite apart, the
+        navigation data it was given is not the satellite's: an alarm of its own."""
+        other = self.provisional_ephemerides.pop(prn)
+        t = own.toe_s
+        apart_m = float(np.linalg.norm(satellite_position(own, t) - satellite_position(other, t)))
+        clock_m = abs(satellite_clock(own, t)[0] - satellite_clock(other, t)[0]) * SPEED_OF_LIGHT_M_S
+        if apart_m > EPHEMERIS_AGREE_M or clock_m > EPHEMERIS_AGREE_M:
+            self._emit("ephemeris_mismatch", t_s, prn=prn, position_m=round(apart_m, 1), clock_m=round(clock_m, 1),
+                       iode_own=own.iode, iode_provisional=other.iode)
 
     def ephemeris_at(self, prn: int, tow_s: float):
         """The ephemeris this receiver would use for a PRN at a GPS time (assisted, else decoded), or None."""
         return self._ephemeris(prn, tow_s)
 
     def _ephemeris(self, prn: int, tow_s: float):
+        """Assisted, else the PRN's own decoded one, else one decoded on its earlier channels or on the signal a
+        supervisor cancels (the spoofer's, provisional), within the age an ephemeris is good for."""
         if self.assisted is not None:
             eph = self.assisted.ephemeris(prn, GpsTime(self._week, tow_s)) if self._week is not None else None
             if eph is not None:
                 return eph
-        return self.decoders[prn].ephemeris if prn in self.decoders else None
+        own = self.decoders[prn].ephemeris if prn in self.decoders else None
+        if own is not None:
+            return own
+        eph = self.provisional_ephemerides.get(prn)
+        if eph is None and self.rectifier is not None:
+            eph = self.rectifier.ephemeris(prn)
+        return eph if eph is not None and abs(wrap_week_s(tow_s - eph.toe_s)) <= ASSIST_MAX_AGE_S else None
 
     def _measure(self) -> None:
         """Observables and a fix at every measurement epoch the channels have tracked past."""
@@ -335,7 +411,9 @@ class Receiver:
             kept = [r for r in raw if r[0] not in left_out]
             if len(kept) >= enough:
                 raw = kept
-        if len(raw) < 4:
+        if self._week is None and self.rectifier is not None:
+            self._week = self.rectifier.week   # a spoofer's subframe 1 says the week as well as any
+        if len(raw) < 4 or self._week is None:   # no GPS time without the week: no fix
             return
         if self._t_rx0 is None:   # start the receiver clock so the pseudoranges come out near 20 000 km
             self._t_rx0 = max(r[1] for r in raw) + TYPICAL_FLIGHT_S - sample / self.fs_hz

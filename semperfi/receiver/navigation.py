@@ -37,7 +37,7 @@ import numpy as np
 from ..gps.constants import BITS_PER_SUBFRAME, SECONDS_PER_WEEK
 from ..gps.ephemeris import Ephemeris, IonoParams, UtcParams
 from ..gps.lnav import (PREAMBLE, SUBFRAMES_PER_WEEK, DecodedSubframe, check_parity, decode_subframe,
-                        ephemeris_from_subframes, iono_utc_from_subframe)
+                        ephemeris_from_subframes, iono_utc_from_subframe, week_of_subframe1)
 from ..gps.time import GpsTime
 
 BIT_S = 0.020                         # one LNAV data bit (50 bit/s)
@@ -97,6 +97,7 @@ class NavDecoder:
         self._ephemeris: Ephemeris | None = None
         self._iono: IonoParams | None = None
         self._utc: UtcParams | None = None
+        self._week: int | None = None                      # from the newest subframe 1 with good parity
         self._latest: dict[int, DecodedSubframe] = {}      # newest good subframe 1, 2, 3
         self._anchor: tuple[int, float] | None = None
         self._candidate: tuple[int, float] | None = None   # a consistent-with-itself new time scale, not yet trusted
@@ -110,6 +111,12 @@ class NavDecoder:
     def ephemeris(self) -> Ephemeris | None:
         """The newest complete, consistent set of subframes 1-3 (None until one has been decoded)."""
         return self._ephemeris
+
+    @property
+    def week(self) -> int | None:
+        """The full GPS week from the newest good subframe 1 (None until one has been decoded): a fix needs it, and
+        subframe 1 comes every 30 s, long before a whole ephemeris can when a recording starts just after one."""
+        return self._week
 
     @property
     def iono(self) -> IonoParams | None:
@@ -321,6 +328,8 @@ class NavDecoder:
     def _use(self, sf: DecodedSubframe) -> None:
         if sf.subframe_id in (1, 2, 3):
             self._latest[sf.subframe_id] = sf
+            if sf.subframe_id == 1:
+                self._week = week_of_subframe1(sf, self.full_week_hint)
             if len(self._latest) == 3:
                 try:
                     eph = ephemeris_from_subframes(self._latest[1], self._latest[2], self._latest[3], prn=self.prn,

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .. import config
+from ..errors import log_internal_error
 from ..gps.time import GpsTime
 from ..iq.source import SampleSource, SourceError, chunk_seconds, open_source
 from .chain import Receiver, RunStats
@@ -30,6 +31,7 @@ class RunSummary:
     truncated_bytes: int
     out_dir: Path
     input_error: str | None = None   # the input failed part-way (closed, stalled): what came before is processed
+    internal_error: str | None = None   # a bug stopped the run: what came before is written, the event says where
 
 
 def _live_table(receiver: Receiver, t_s: float, total_s: float | None = None):
@@ -58,7 +60,7 @@ def run_file(path: str | Path, fmt: str | None, fs_hz: float | None, if_hz: floa
     out_dir.mkdir(parents=True, exist_ok=True)
     write_config(out_dir, config.dumps_toml(cfg))
     t0 = time.perf_counter()
-    input_error = None
+    input_error = internal_error = None
     total_s = None if source.expected_samples is None else source.expected_samples / source.fs_hz
     with OutputWriter(out_dir, cfg["output"]["formats"]) as out:
         receiver = receiver_factory(cfg, source.fs_hz, source.if_hz, assisted, on_fix=out.write, events=out,
@@ -89,18 +91,23 @@ def run_file(path: str | Path, fmt: str | None, fs_hz: float | None, if_hz: floa
         except SourceError as exc:   # keep everything computed; the caller reports the failure after the summary
             input_error = str(exc)
             out.emit("input_lost", receiver.stats.samples / source.fs_hz, error=input_error)
+        except Exception as exc:     # a bug: never a traceback; everything written so far is kept
+            internal_error = log_internal_error(out, receiver.stats.samples / source.fs_hz, exc)
         finally:
             source.close()
             if source.truncated_bytes:
                 out.emit("truncated_input", source.n_samples / source.fs_hz, dropped_bytes=source.truncated_bytes)
-            if hasattr(receiver, "finish"):
-                receiver.finish()
+            if hasattr(receiver, "finish") and internal_error is None:
+                try:
+                    receiver.finish()
+                except Exception as exc:
+                    internal_error = log_internal_error(out, receiver.stats.samples / source.fs_hz, exc)
             if live_ctx is not None:
                 live_ctx.update(_live_table(receiver, receiver.stats.samples / source.fs_hz, total_s))
                 live_ctx.stop()
     summary = RunSummary(receiver.stats, receiver.last_fix, source.n_samples / source.fs_hz,
-                         time.perf_counter() - t0, source.truncated_bytes, out_dir, input_error)
-    if not receiver.stats.confirmed and input_error is None:
+                         time.perf_counter() - t0, source.truncated_bytes, out_dir, input_error, internal_error)
+    if not receiver.stats.confirmed and input_error is None and internal_error is None:
         raise NoSignal(f"no satellite signal could be tracked in {source.name}: check --fs ({source.fs_in_hz:g} Hz), "
                        f"--format ({source.fmt.name}) and --if ({source.if_in_hz:g} Hz); outputs in {out_dir}")
     return summary
