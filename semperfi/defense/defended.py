@@ -264,6 +264,8 @@ class DefendedReceiver:
             sb = None
         ch = inner.channels.get(prn)
         if ch is not None and ch.ms > 0 and self._chips_from_peak(ch, peak, peak_sample) < 0.6:
+            if inner.rectifier is not None:
+                inner.rectifier.inherit(prn, ch, inner.decoders.get(prn))
             if sb is None or not inner.promote(prn, "the peak it tracked is being cancelled"):
                 inner.drop_channel(prn, "tracking the peak under cancellation")
         elif ch is None and sb is not None:

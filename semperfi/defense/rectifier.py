@@ -18,7 +18,7 @@ seconds away from the receiver's prediction is refused, and the rectified ranges
 from dataclasses import dataclass
 
 from ..gps.codes import chips_offset
-from ..gps.constants import CA_CODE_LENGTH_CHIPS, SECONDS_PER_WEEK
+from ..gps.constants import CA_CODE_LENGTH_CHIPS, L1_HZ, SECONDS_PER_WEEK
 from ..gps.time import wrap_week_s
 from ..receiver.navigation import NavDecoder
 from ..receiver.tracking import Channel
@@ -27,6 +27,9 @@ from .canceller import AdversaryTrack, Canceller
 MODES = ("auto", "always", "off")
 CODE_PERIOD_S = 1e-3
 MAX_TIME_STEP_S = 0.010        # a spoofer's time this far from the receiver's prediction or further is refused
+# a donor's time is carried this far (its Doppler, the spoofer's drag, move a code epoch by well under a microsecond
+# over it: nothing next to the half millisecond the carried time is rounded by)
+DONOR_REACH_S = 5.0
 
 
 @dataclass(frozen=True)
@@ -46,16 +49,55 @@ class Rectifier:
         self.mode, self.week_hint = mode, week_hint
         self._decoders: dict[AdversaryTrack, NavDecoder] = {}
         self.refused: dict[int, str] = {}      # PRN -> why its spoofer's time was not taken (latest)
+        # PRN -> (sample of a code epoch, its transmit time, Doppler): a receiver channel that tracked the spoofer
+        # and read its time before the canceller took the signal over
+        self._donors: dict[int, tuple[float, float, float]] = {}
+        self._inherited: dict[AdversaryTrack, tuple[int, float]] = {}   # track -> (code period, its transmit time)
+
+    def inherit(self, prn: int, channel: Channel, decoder: NavDecoder | None) -> None:
+        """A receiver channel on the peak now being cancelled hands its time on: the canceller's fresh track of the
+        same signal need not wait a subframe (6-12 s) to read it again."""
+        if decoder is None or decoder.time_anchor is None or channel.bits.edge_ms is None or channel.ms < 2:
+            return
+        ms = channel.ms - 2   # an epoch with one after it in the history
+        start_bit, t0 = decoder.time_anchor
+        t_sv = t0 + (ms - channel.ms_of_bit(start_bit)) * CODE_PERIOD_S
+        self._donors[prn] = (float(channel.epoch_sample[ms % channel.HISTORY_MS]), t_sv, channel.doppler_at(0))
 
     def update(self, canceller: Canceller) -> None:
         """Read the data bits every spoofer's channel has completed (call after each push through the canceller)."""
         live = {tr for st in canceller.stages for tr in st.tracks.values()}
         self._decoders = {tr: dec for tr, dec in self._decoders.items() if tr in live}
+        self._inherited = {tr: a for tr, a in self._inherited.items() if tr in live}
         for tr in live:
             dec = self._decoders.setdefault(tr, NavDecoder(tr.prn, self.week_hint))
             soft, first = tr.channel.take_bits()
             if soft.size:
                 dec.push_bits(soft, first)
+            if dec.time_anchor is None and tr not in self._inherited and tr.prn in self._donors:
+                self._take_over(tr)
+
+    def _take_over(self, tr: AdversaryTrack) -> None:
+        """The donor's time carried to the track's latest code epoch (a code epoch leaves the satellite on a whole
+        millisecond: the carried time rounds to it, exactly while the two lay within half a code period)."""
+        ch = tr.channel
+        if ch.ms < 2:
+            return
+        sample, t_sv, doppler_hz = self._donors[tr.prn]
+        ms = ch.ms - 2
+        epoch = float(ch.epoch_sample[ms % ch.HISTORY_MS])
+        if abs(epoch - sample) > DONOR_REACH_S * ch.fs_hz:
+            del self._donors[tr.prn]
+            return
+        carried = t_sv + (epoch - sample) / ch.fs_hz * (1.0 + doppler_hz / L1_HZ)
+        self._inherited[tr] = (ms, round(carried / CODE_PERIOD_S) * CODE_PERIOD_S % SECONDS_PER_WEEK)
+
+    def _time_anchor(self, tr: AdversaryTrack, dec: NavDecoder) -> tuple[int, float] | None:
+        """(code period, its transmit time) of a track: from its own decoded message, else inherited."""
+        if dec.time_anchor is not None:
+            start_bit, t0 = dec.time_anchor
+            return tr.channel.ms_of_bit(start_bit), t0
+        return self._inherited.get(tr)
 
     @property
     def week(self) -> int | None:
@@ -80,11 +122,11 @@ class Rectifier:
         ephemeris_of(prn, tow_s): the receiver's own ephemeris (assisted or decoded), else the spoofer's is used;
         predict(ephemeris, sample): the receiver clock's prediction of the transmit time, or None without a fix."""
         for tr, dec in sorted(self._decoders.items(), key=lambda item: item[0].stage):
-            if tr.prn != prn or dec.time_anchor is None:
+            anchor = self._time_anchor(tr, dec) if tr.prn == prn else None
+            if anchor is None:
                 continue
             adv = tr.channel
-            start_bit, t0 = dec.time_anchor
-            t_at = adv.transmit_time_at(sample, adv.ms_of_bit(start_bit), t0)
+            t_at = adv.transmit_time_at(sample, *anchor)
             at_chips, legit_chips = adv.code_phase_at(sample), legit.code_phase_at(sample)
             if t_at is None or at_chips is None or legit_chips is None:
                 continue

@@ -56,6 +56,12 @@ class ClosedLoop:
     def first(self, kind: str, source: str = "events") -> dict | None:
         return next((e for e in getattr(self, source) if e.get("event") == kind), None)
 
+    def fix_levels_m(self, state: str | None = None) -> np.ndarray:
+        """The horizontal protection level of each fix (of one state), in fix_errors_m's order; a fix without one
+        bounds nothing (0)."""
+        rows = [r for r in self.fixes if state is None or r["state"] == state]
+        return np.nan_to_num(np.array([float(r.get("hpl_m") or "nan") for r in rows]), nan=0.0)
+
     def fix_errors_m(self, state: str | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(t_rx_s, horizontal error) of each fix (of one state) against the vehicle's true position at its time."""
         if not self.fixes or not self.truth:

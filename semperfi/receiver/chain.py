@@ -100,6 +100,7 @@ class Receiver:
         # ephemerides decoded on a PRN's earlier channels (a spoofer's peak, in a stealthy attack the same data),
         # used until the PRN's own decoder has one: a replaced channel must not wait 30 s for subframes 1-3
         self.provisional_ephemerides: dict[int, object] = {}
+        self._retired: dict[int, NavDecoder] = {}   # the last decoder of a PRN whose channel went, for the next one
 
     # -- events ---------------------------------------------------------------------------------------------
     def _emit(self, kind: str, t_rx_s: float, **fields) -> None:
@@ -149,7 +150,7 @@ class Receiver:
                 continue
             st = initial_state(b.code_phase_chips, start, b.doppler_hz, self.fs_hz, start)
             self.channels[caf.prn] = Channel(caf.prn, self.fs_hz, self.if_hz, st, self.loop)
-            self.decoders.setdefault(caf.prn, NavDecoder(caf.prn, self._week))
+            self.decoders[caf.prn] = self._new_decoder(caf.prn)
             self.warm.pop(caf.prn, None)
             free -= 1
             self._emit("tracking_start", t_s, prn=caf.prn)
@@ -178,6 +179,7 @@ class Receiver:
                 self._emit("loss_of_lock", end / self.fs_hz, prn=prn, cn0_dbhz=round(float(ch.cn0_dbhz), 1))
                 self.warm[prn] = ch.doppler_at(0)
                 del self.channels[prn]
+                self._retire(prn, self.decoders.pop(prn, None))
                 self._next_acq_sample = min(self._next_acq_sample, end + self.acq_samples)
         self._measure()
         keep = max(2 * self.samples_per_ms + 2, self.acq_samples)
@@ -219,13 +221,23 @@ class Receiver:
             t_s = (self._base + self._buf.size) / self.fs_hz
             self._emit("channel_dropped", t_s, prn=prn, reason=reason)
             del self.channels[prn]
-        self._keep_ephemeris(prn, self.decoders.pop(prn, None))
+        self._retire(prn, self.decoders.pop(prn, None))
         self.warm.pop(prn, None)
         self._next_acq_sample = min(self._next_acq_sample, self._base + self._buf.size + self.acq_samples)
 
-    def _keep_ephemeris(self, prn: int, decoder: NavDecoder | None) -> None:
-        if decoder is not None and decoder.ephemeris is not None:
+    def _retire(self, prn: int, decoder: NavDecoder | None) -> None:
+        """A decoder whose channel goes: its ephemeris serves provisionally, its subframes seed the PRN's next."""
+        if decoder is None:
+            return
+        if decoder.ephemeris is not None:
             self.provisional_ephemerides[prn] = decoder.ephemeris
+        self._retired[prn] = decoder
+
+    def _new_decoder(self, prn: int) -> NavDecoder:
+        dec = NavDecoder(prn, self._week)
+        if prn in self._retired:
+            dec.adopt(self._retired.pop(prn))
+        return dec
 
     # -- standby channels (a supervisor's second hypothesis) ----------------------------------------------------
     def start_standby(self, prn: int, code_phase_chips: float, peak_sample: float, doppler_hz: float,
@@ -252,7 +264,10 @@ class Receiver:
         dec = self.standby_decoders.pop(prn, None)
         if ch is None or not ch.locked:
             return False
-        self._keep_ephemeris(prn, self.decoders.get(prn))
+        old = self.decoders.get(prn)
+        self._retire(prn, old)
+        if old is not None:
+            dec.adopt(self._retired.pop(prn))
         self.channels[prn], self.decoders[prn] = ch, dec
         self.warm.pop(prn, None)
         self._emit("channel_promoted", (self._base + self._buf.size) / self.fs_hz, prn=prn, reason=reason,

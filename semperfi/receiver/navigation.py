@@ -107,6 +107,16 @@ class NavDecoder:
 
     # ------------------------------------------------------------------------------------------ public face
 
+    def adopt(self, other: "NavDecoder") -> None:
+        """Take over what an earlier decoder of the same PRN read (subframes 1-3, the week, ionosphere and UTC) where
+        this one has read nothing of its own yet: a channel that replaces another (a verdict, a loss of lock)
+        completes an ephemeris with the subframes it still lacks, not with a whole new frame (30 s). Its time anchor
+        is its own: bit indices belong to a channel."""
+        for k, sf in other._latest.items():
+            self._latest.setdefault(k, sf)
+        self._week = self._week if self._week is not None else other._week
+        self._iono, self._utc = self._iono or other._iono, self._utc or other._utc
+
     @property
     def ephemeris(self) -> Ephemeris | None:
         """The newest complete, consistent set of subframes 1-3 (None until one has been decoded)."""
