@@ -1,5 +1,6 @@
 """RAIM: the chi-square residual test, fault detection and exclusion, and protection levels, on real geometry."""
 
+import csv
 from dataclasses import replace
 
 import numpy as np
@@ -58,6 +59,25 @@ def test_protection_levels_bound_the_clean_error(scene):
     v_ok = np.mean(np.abs(err[2]) <= vpl)
     assert h_ok >= 0.99 and v_ok >= 0.99, f"HPL {hpl:.1f} m bounds {h_ok:.4f}, VPL {vpl:.1f} m bounds {v_ok:.4f}"
     assert 1.0 < hpl < 50.0, f"HPL {hpl:.1f} m with {len(sigma)} satellites at {CN0_DBHZ} dB-Hz"
+
+
+def test_time_protection_level_bounds_the_clean_clock_error_and_a_missed_fault(scene):
+    _, _, h, sigma, _ = scene
+    tpl = integrity.time_protection_level(h, sigma, CFG.pfa, CFG.pmd)
+    w = 1 / sigma ** 2
+    k = np.linalg.solve(h.T @ (h * w[:, None]), h.T * w)
+    err = k[3] @ np.random.default_rng(6).normal(0, sigma[:, None], (len(sigma), 5000))
+    assert np.mean(np.abs(err) <= tpl) >= 0.999, f"TPL {tpl:.1f} m bounds {np.mean(np.abs(err) <= tpl):.4f}"
+    assert np.sqrt(np.linalg.inv(h.T @ (h * w[:, None]))[3, 3]) == pytest.approx(integrity.clock_sigma(h, sigma))
+    # a fault on one range just large enough to be missed (the test at its threshold) moves the clock at most TPL
+    rng = np.random.default_rng(7)
+    for i in range(len(sigma)):
+        for _ in range(50):
+            y = rng.normal(0, sigma)
+            y[i] += rng.uniform(-1, 1) * 40.0
+            if integrity.chi2_test(h, y, sigma, CFG.pfa).passed:
+                assert abs(k[3] @ y) <= tpl, (i, k[3] @ y, tpl)
+    assert np.isnan(integrity.time_protection_level(h[:4], sigma[:4], CFG.pfa, CFG.pmd))
 
 
 @pytest.mark.parametrize("bias_m", [100.0, 300.0])
@@ -124,3 +144,13 @@ def test_clean_simulated_recording_passes_raim_with_realistic_protection_levels(
     assert passed >= 0.95, f"{passed:.1%} of {len(fixes)} clean fixes pass RAIM: {sorted(set(raim))}"
     assert np.all((hpl > 1.0) & (hpl < 100.0)), f"HPL {hpl.min():.1f}..{hpl.max():.1f} m"
     assert np.all(horizontal <= hpl), f"error {horizontal.max():.1f} m exceeds HPL"
+    # the time: the truth's GPS time of each fix's sample against the fix's, within RAIM's TPL (a clean sky: no
+    # common delay for it to miss)
+    truth = list(csv.DictReader(open(tmp_path / "a.truth-receiver.csv")))
+    t = np.array([float(r["t_rx_s"]) for r in truth])
+    tow = np.array([float(r["gps_tow_s"]) for r in truth])
+    err_ns = np.array([(float(f["gps_tow_s"]) - np.interp(float(f["t_rx_s"]), t, tow)) * 1e9 for f in fixes])
+    tpl = np.array([float(f["tpl_ns"]) for f in fixes])
+    assert np.all((tpl > 5.0) & (tpl < 300.0)), f"TPL {tpl.min():.1f}..{tpl.max():.1f} ns"
+    assert np.all(np.abs(err_ns) <= tpl), f"time error {np.abs(err_ns).max():.1f} ns exceeds TPL"
+    assert {f["time_state"] for f in fixes} == {"unverified"}   # the receiver alone checks no common delay

@@ -212,7 +212,8 @@ def test_events_are_json_lines_with_numpy_values_made_plain(tmp_path):
 
 @pytest.mark.parametrize("field, value", [("lat_deg", float("nan")), ("height_m", float("inf")),
                                           ("pos_ecef_m", np.array([1.0, np.nan, 2.0])),
-                                          ("hdop", float("nan")), ("gps_tow_s", 604800.0)])
+                                          ("hdop", float("nan")), ("gps_tow_s", 604800.0),
+                                          ("time_state", "fine"), ("tpl_ns", -1.0)])
 def test_a_bad_fix_is_refused_in_one_line_and_writes_nothing(tmp_path, field, value):
     with OutputWriter(tmp_path) as out:
         out.write(_fix())
@@ -241,3 +242,15 @@ def test_write_config_saves_the_effective_configuration(tmp_path):
     assert path == tmp_path / "run" / "config.toml" and path.read_text() == text
     with pytest.raises(ValueError):
         write_config(tmp_path, "this is = = not toml")
+
+
+def test_the_time_protection_level_and_time_state_are_in_csv_and_geojson(tmp_path):
+    fixes = [_fix(tpl_ns=71.25, time_state="nominal"), _fix(t_rx_s=2.0, tow_s=TOW_S + 1.0, time_state="holdover",
+                                                            tpl_ns=312.5), _fix(t_rx_s=3.0, tow_s=TOW_S + 2.0)]
+    _write(tmp_path, fixes, formats=("csv", "geojson"))
+    rows = list(csv.DictReader(open(tmp_path / "fixes.csv", newline="")))
+    assert [r["time_state"] for r in rows] == ["nominal", "holdover", "unverified"]
+    assert [r["tpl_ns"] for r in rows] == ["71.25", "312.50", "nan"]   # nan: no redundancy, no bound
+    props = [f["properties"] for f in json.loads((tmp_path / "fixes.geojson").read_text())["features"]]
+    assert [p["time_state"] for p in props] == ["nominal", "holdover", "unverified"]
+    assert props[1]["tpl_ns"] == 312.5 and props[2]["tpl_ns"] is None

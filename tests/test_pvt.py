@@ -258,3 +258,12 @@ def test_a_prior_on_the_other_side_of_the_earth_does_not_mislead(synth, boston):
     obs, _ = observe(synth, boston, START.tow_s + 40.0, DEFAULT_IONO, True)
     fix = solve(obs, T_RX_S, START.week, DEFAULT_IONO, prior=sydney_fix)
     assert fix is not None and pos_error_m(fix, boston) < 0.01
+
+
+def test_a_fix_carries_its_time_protection_level_in_ns(synth, boston):
+    obs, _ = observe(synth, boston, START.tow_s, DEFAULT_IONO, True, min_el_deg=5.0)
+    fix = solve(obs, 1.0, START.week, DEFAULT_IONO)
+    assert fix.raim == "pass" and 5.0 < fix.tpl_ns < 300.0, (fix.raim, fix.tpl_ns)
+    assert 0.0 < fix.clock_sigma_ns < fix.tpl_ns and fix.time_state == "unverified"
+    four = solve(obs[:4], 1.0, START.week, DEFAULT_IONO)
+    assert np.isnan(four.tpl_ns)

@@ -149,6 +149,27 @@ def test_meaconing_delays_every_prn_by_the_replay_delay(tmp_path):
         assert spoof[p] - legit[p] == pytest.approx(SPEED_OF_LIGHT_M_S * 1e-6, abs=2.0)
 
 
+def test_time_push_delays_every_prn_alike_code_and_carrier_and_writes_its_truth(tmp_path):
+    """Aligned with the sky at first, then every spoofed signal delayed by rate x (t - start - hold): the same delay on
+    each PRN, in code and carrier alike; the receiver truth says the delay."""
+    out, rows = simulate(tmp_path, "tpush", "attacker.enabled=true", 'attacker.mode="time_push"', "attacker.start_s=0.2",
+                         "attacker.push_hold_s=0.3", "attacker.time_push_rate_s_s=1e-6", "attacker.time_push_ramp_s=0.0",
+                         duration=1.0)
+    def gap(t, key):
+        at = {(int(r["prn"]), r["source"]): r[key] for r in rows if abs(r["t_rx_s"] - t) < 1e-9}
+        return np.array([at[(p, "spoof")] - at[(p, "legit")] for p, s in at if s == "spoof"])
+    for t, delay_s in ((0.4, 0.0), (0.9, 0.4e-6)):
+        code = gap(t, "pseudorange_m")
+        assert np.allclose(code, SPEED_OF_LIGHT_M_S * delay_s, atol=0.05), (t, code)
+        carrier_m = -gap(t, "carrier_phase_cycles") * 0.190293672798365
+        assert np.allclose(carrier_m, carrier_m[0]) and abs(carrier_m[0] - SPEED_OF_LIGHT_M_S * delay_s) < 0.2, carrier_m
+    truth = list(csv.DictReader(open(truth_paths(out)["receiver.csv"])))
+    claimed = {round(float(r["t_rx_s"]), 1): r["claimed_delay_s"] for r in truth}
+    assert claimed[0.1] == "" and float(claimed[0.9]) == pytest.approx(0.4e-6, rel=1e-6)
+    events = [json.loads(l) for l in open(truth_paths(out)["events.jsonl"])]
+    assert [e["event"] for e in events] == ["attack_start", "drag_off_start"] and events[1]["time_push_rate_s_s"] == 1e-6
+
+
 def test_same_seed_same_bytes_other_seed_other_bytes(tmp_path):
     digest = []
     for i, seed in enumerate((5, 5, 6)):

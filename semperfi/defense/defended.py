@@ -14,6 +14,7 @@ from ..receiver.integrity import trusted
 from ..receiver.types import Fix
 from .beat import WINDOW_MS as BEAT_WINDOW_MS, two_carriers
 from .canceller import JOINT_WITHIN_CHIPS
+from .clock_guard import ClockGuard
 from .continuity import Continuity
 from .guard import SpoofGuard
 from .maneuver_id import LinkedManeuver, ManeuverIdentifier
@@ -63,6 +64,7 @@ class DefendedReceiver:
         self.inner = Receiver(cfg, fs_hz, if_hz, assisted, on_fix=self._label, events=events, week_hint=week_hint,
                               on_observations=on_observations)
         self.inner.min_sats_distrusting = 4 + self.guard.d["min_redundancy"]
+        self.clock = ClockGuard(self.guard)   # time integrity: the clock model's alarm and the fixes' time_state
         if self.guard.d["mode"] == "full" and self.guard.d["rectify"] != "off":
             self.inner.rectifier = Rectifier(self.guard.d["rectify"], week_hint)
         self._rectifying: set[int] = set()
@@ -315,7 +317,7 @@ class DefendedReceiver:
                 self.events.emit("recovered", fix.t_rx_s, time_to_recover_s=round(fix.t_rx_s - g.alarm_t_s, 2),
                                  state=state)
         if self.on_fix is not None:
-            self.on_fix(replace(fix, state=state))
+            self.on_fix(self.clock.check(replace(fix, state=state)))   # its time: defense/clock_guard
 
     def _note_rectified(self, prns: set[int], t_s: float) -> None:
         """An event when a PRN's range starts or stops being timed by its spoofer's navigation message."""

@@ -204,6 +204,15 @@ class SpoofGuard:
                 self.detector.first_alarm_s = t_s
             self._alarm(prn, t_s, {"found_by": "beat", "beat_hz": round(f_hz, 1)})
 
+    def clock_alarm(self, t_s: float, event: dict) -> None:
+        """The receiver clock moved as its oscillator cannot (defense/clock_guard): every range delayed alike, a
+        seamless takeover's time push. No PRN is named (the attack alarm, alarm_t_s, stays the peaks'): it is the
+        evidence of a takeover, and every PRN is examined at the highest sensitivity for the peaks to part."""
+        self.takeover = True
+        if not self.detector.sensitive:
+            self.detector.first_alarm_s = t_s
+        self._emit("clock_alarm", t_s, **event)
+
     def _alarm(self, prn: int, t_s: float, event: dict) -> None:
         """An alarm on a PRN, whatever raised it (the event's fields say what)."""
         self.alarmed_prns.add(prn)

@@ -35,7 +35,10 @@ class GpsTime:
         return GPS_EPOCH + timedelta(seconds=self.seconds)
 
     def __add__(self, dt_s: float) -> "GpsTime":
-        return GpsTime.from_seconds(self.seconds + dt_s)
+        # added to the seconds of week, not to the seconds since 1980 (~1.3e9 s, whose float steps are 0.24 us): the
+        # simulator's truth times each sample to well under a nanosecond
+        week, tow = divmod(self.tow_s + dt_s, SECONDS_PER_WEEK)
+        return GpsTime(self.week + int(week), float(tow))
 
 
 def wrap_week_s(dt_s: float) -> float:

@@ -10,7 +10,13 @@ plus a floor for orbit/clock/residual atmosphere: floor_m^2 + (atmosphere_m / si
 
 Test: T = r' W r (W = diag 1/sigma^2) ~ chi2(n - 4) without fault; alarm when T > chi2.ppf(1 - pfa, n - 4).
 Protection levels (Brown; Walter & Enge weighted): slope_i = |error per unit bias on i| / sqrt((W P)_ii), pbias the
-sqrt of the non-centrality giving missed detection pmd at the threshold, HPL = max_i Hslope_i * pbias, same for VPL.
+sqrt of the non-centrality giving missed detection pmd at the threshold, HPL = max_i Hslope_i * pbias, same for VPL,
+and for the receiver clock TPL = max_i Tslope_i * pbias with Tslope_i = |K_ti| / sqrt((W P)_ii), K_t the clock row of
+the weighted least squares gain (in metres here; the fix carries it in ns).
+
+What TPL bounds: the clock error an undetected fault on ONE range can cause. A delay common to every range (a time
+push) leaves no residual at all -- it goes whole into the clock -- so no RAIM sees it: the receiver's clock model
+(receiver/clock.py) and the defence's clock guard (defense/clock_guard.py) are what bound that part.
 """
 
 from dataclasses import dataclass
@@ -60,6 +66,8 @@ class RaimResult:
     test: RaimTest                   # test on the kept ranges
     hpl_m: float
     vpl_m: float
+    tpl_m: float = float("nan")      # clock-bias protection level (m); nan without redundancy
+    clock_sigma_m: float = float("nan")  # 1 sigma of the clock estimate, fault-free (weighted least squares covariance)
 
 
 def sigma_m(cn0_dbhz, elevation_rad, model: SigmaModel = SigmaModel()) -> np.ndarray:
@@ -112,19 +120,43 @@ def pbias(dof: int, pfa: float, pmd: float) -> float:
     return float(np.sqrt(lam))
 
 
-def protection_levels(h_enu, sigma, pfa: float, pmd: float) -> tuple[float, float]:
-    """HPL, VPL (m): the largest position error an undetected single-range bias can cause (nan without redundancy)."""
+def _slopes(h_enu, sigma):
+    """(dof, east-north slope, up slope, clock slope) per range: state error per unit of test statistic's sqrt."""
     h, s = np.asarray(h_enu, float), np.asarray(sigma, float)
     dof = len(s) - h.shape[1]
     if dof < 1:
-        return float("nan"), float("nan")
+        return dof, None, None, None
     w = 1.0 / s ** 2
     _, k, p = _projection(h, w)
-    wp = np.maximum(np.diag(p) * w, 1e-300)
-    hslope = np.hypot(k[0], k[1]) / np.sqrt(wp)
-    vslope = np.abs(k[2]) / np.sqrt(wp)
+    root_wp = np.sqrt(np.maximum(np.diag(p) * w, 1e-300))
+    return dof, np.hypot(k[0], k[1]) / root_wp, np.abs(k[2]) / root_wp, np.abs(k[3]) / root_wp
+
+
+def protection_levels(h_enu, sigma, pfa: float, pmd: float) -> tuple[float, float]:
+    """HPL, VPL (m): the largest position error an undetected single-range bias can cause (nan without redundancy)."""
+    dof, hslope, vslope, _ = _slopes(h_enu, sigma)
+    if dof < 1:
+        return float("nan"), float("nan")
     pb = pbias(dof, pfa, pmd)
     return float(hslope.max() * pb), float(vslope.max() * pb)
+
+
+def time_protection_level(h_enu, sigma, pfa: float, pmd: float) -> float:
+    """TPL (m of c * clock bias): the largest clock error an undetected single-range bias can cause, the clock
+    component of the same slopes (nan without redundancy). A common delay on every range is outside it."""
+    dof, _, _, tslope = _slopes(h_enu, sigma)
+    if dof < 1:
+        return float("nan")
+    return float(tslope.max() * pbias(dof, pfa, pmd))
+
+
+def clock_sigma(h_enu, sigma) -> float:
+    """1 sigma (m) of the clock component of the weighted least squares solution, fault-free: sqrt(Q_tt)."""
+    h, s = np.asarray(h_enu, float), np.asarray(sigma, float)
+    if len(s) < h.shape[1]:
+        return float("nan")
+    q, _, _ = _projection(h, 1.0 / s ** 2)
+    return float(np.sqrt(q[3, 3]))
 
 
 def fde(h_enu, residual_m, sigma, config: IntegrityConfig = IntegrityConfig()) -> RaimResult:
@@ -151,7 +183,8 @@ def fde(h_enu, residual_m, sigma, config: IntegrityConfig = IntegrityConfig()) -
     else:
         status = "excluded" if excluded else "pass"
     hpl, vpl = protection_levels(h[use], s[use], config.pfa, config.pmd)
-    return RaimResult(status, use, tuple(excluded), test, hpl, vpl)
+    tpl = time_protection_level(h[use], s[use], config.pfa, config.pmd)
+    return RaimResult(status, use, tuple(excluded), test, hpl, vpl, tpl, clock_sigma(h[use], s[use]))
 
 
 def trusted(raim: str) -> bool:

@@ -34,7 +34,7 @@ from pynmeagps.nmeatypes_core import GET
 from ..gps.constants import SECONDS_PER_WEEK
 from ..gps.geometry import enu_rotation
 from ..gps.time import GPS_EPOCH
-from .types import Fix
+from .types import TIME_STATES, Fix
 from .integrity import RAIM_STATES
 from .rinex_obs import ObsEpoch, RinexObsWriter
 
@@ -46,7 +46,7 @@ COURSE_MIN_SPEED_M_S = 0.1        # below this the direction of a noisy velocity
 CSV_COLUMNS = ("t_rx_s", "gps_week", "gps_tow_s", "lat_deg", "lon_deg", "height_m", "x_m", "y_m", "z_m",
                "vx_m_s", "vy_m_s", "vz_m_s", "clock_bias_m", "clock_drift_m_s", "n_sats", "pdop", "hdop", "vdop",
                "residual_rms_m", "prns", "state", "raim", "excluded_prns", "test_statistic", "hpl_m",
-               "vpl_m")
+               "vpl_m", "tpl_ns", "time_state")
 
 _GPX_HEADER = (
     '<?xml version="1.0" encoding="UTF-8"?>\n'
@@ -100,7 +100,8 @@ def _check_fix(fix: Fix) -> tuple[np.ndarray, np.ndarray]:
     where = f"fix at t_rx_s={fix.t_rx_s!r}"
     scalars = {f.name: getattr(fix, f.name) for f in dataclasses.fields(Fix)
                if f.name not in ("pos_ecef_m", "vel_ecef_m_s", "prns", "state", "raim", "excluded_prns",
-                                 "test_statistic", "hpl_m", "vpl_m")}   # RAIM values are nan without redundancy
+                                 "test_statistic", "hpl_m", "vpl_m", "tpl_ns", "time_state", "clock_sigma_ns")}
+    # RAIM values are nan without redundancy
     for name, value in scalars.items():
         try:
             finite = math.isfinite(value)
@@ -130,6 +131,10 @@ def _check_fix(fix: Fix) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"{where}: prns {fix.prns!r} must be integers")
     if not isinstance(fix.state, str) or not fix.state or any(c in fix.state for c in ",\r\n\"<>&"):
         raise ValueError(f"{where}: state {fix.state!r} must be a plain non-empty word")
+    if fix.time_state not in TIME_STATES:
+        raise ValueError(f"{where}: time_state {fix.time_state!r} is not one of {TIME_STATES}")
+    if not isinstance(fix.tpl_ns, (int, float, np.floating)) or fix.tpl_ns < 0:
+        raise ValueError(f"{where}: tpl_ns {fix.tpl_ns!r} must be a non-negative number or nan")
     return vectors[0], vectors[1]
 
 
@@ -144,7 +149,7 @@ def _csv_row(fix: Fix, pos: np.ndarray, vel: np.ndarray) -> list[str]:
             f"{fix.pdop:.3f}", f"{fix.hdop:.3f}", f"{fix.vdop:.3f}", f"{fix.residual_rms_m:.4f}",
             " ".join(str(int(p)) for p in fix.prns), fix.state, fix.raim,
             " ".join(str(int(p)) for p in fix.excluded_prns), f"{fix.test_statistic:.4f}", f"{fix.hpl_m:.3f}",
-            f"{fix.vpl_m:.3f}"]
+            f"{fix.vpl_m:.3f}", f"{fix.tpl_ns:.2f}", fix.time_state]
 
 
 def horizontal_velocity(fix: Fix) -> tuple[float, float]:
@@ -202,7 +207,8 @@ def _geojson_feature(fix: Fix, utc: _dt.datetime) -> str:
                      "coordinates": [round(fix.lon_deg, 10), round(fix.lat_deg, 10), round(fix.height_m, 4)]},
         "properties": {"t_rx_s": fix.t_rx_s, "gps_week": int(fix.gps_week), "gps_tow_s": fix.gps_tow_s,
                        "time_utc": _iso_utc(utc), "n_sats": int(fix.n_sats), "prns": [int(p) for p in fix.prns],
-                       "pdop": fix.pdop, "hdop": fix.hdop, "vdop": fix.vdop, "state": fix.state},
+                       "pdop": fix.pdop, "hdop": fix.hdop, "vdop": fix.vdop, "state": fix.state,
+                       "time_state": fix.time_state, "tpl_ns": fix.tpl_ns},
     }
     return json.dumps(_to_json(feature), allow_nan=False)
 

@@ -158,7 +158,8 @@ def solve(observations: list[Observation], t_rx_s: float, gps_week: int, iono: I
           raim: integrity.IntegrityConfig = integrity.IntegrityConfig()) -> Fix | None:
     """solve_once, then RAIM (integrity.fde) on the solution; excluded ranges are dropped and the fix solved again.
 
-    The Fix carries raim (pass | fail | excluded | unverifiable), excluded_prns, test_statistic, hpl_m, vpl_m.
+    The Fix carries raim (pass | fail | excluded | unverifiable), excluded_prns, test_statistic, hpl_m, vpl_m and
+    tpl_ns (the clock's protection level against one faulty range, integrity.time_protection_level, in ns).
     """
     observations = [o for o in observations
                     if np.isfinite(o.pseudorange_m) and np.isfinite(o.t_sv_s) and o.weight > 0]
@@ -188,7 +189,8 @@ def _with_raim(observations, fix: Fix, sats: "_Satellites", model: "_Model", cfg
     result = integrity.fde(h, model.residual_m[use], sigma, cfg)
     prns = sats.prn[use]
     return replace(fix, raim=result.status, excluded_prns=tuple(int(prns[i]) for i in result.excluded),
-                   test_statistic=result.test.statistic, hpl_m=result.hpl_m, vpl_m=result.vpl_m), result
+                   test_statistic=result.test.statistic, hpl_m=result.hpl_m, vpl_m=result.vpl_m,
+                   tpl_ns=result.tpl_m / C * 1e9, clock_sigma_ns=result.clock_sigma_m / C * 1e9), result
 
 
 def _solve_once(observations: list[Observation], t_rx_s: float, gps_week: int, iono: IonoParams | None,

@@ -21,6 +21,11 @@ class Observation:
 
 # the states that call a fix good: a wrong position must never carry one of them
 TRUSTED_STATES = ("nominal", "recovered", "rectified")
+# the time of a fix (gps_tow_s, clock_bias_m), apart from its position: nominal (RAIM and the clock model agree: the
+# error is within tpl_ns), holdover (the clock model alarmed: the time is the model's prediction, within tpl_ns),
+# unverified (nothing checked a delay common to every range: no common-mode bound)
+TIME_STATES = ("nominal", "holdover", "unverified")
+TIME_TRUSTED = ("nominal", "holdover")
 
 
 @dataclass(frozen=True)
@@ -48,3 +53,9 @@ class Fix:
     test_statistic: float = float("nan")  # weighted residual sum of squares (chi-square distributed when clean)
     hpl_m: float = float("nan")           # horizontal / vertical protection levels (nan without redundancy)
     vpl_m: float = float("nan")
+    # time protection level (ns): the clock error this fix's time is bounded by. From the receiver: RAIM's (one faulty
+    # range; a common delay is outside it); the defence's clock guard widens it by what its clock model could miss,
+    # or replaces it in holdover (defense/clock_guard.py)
+    tpl_ns: float = float("nan")
+    clock_sigma_ns: float = float("nan")  # 1 sigma of the clock bias, fault-free (the clock model's measurement noise)
+    time_state: str = "unverified"  # nominal | holdover | unverified (TIME_STATES): whether tpl_ns bounds the time

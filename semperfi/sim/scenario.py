@@ -35,7 +35,7 @@ DEFAULTS: dict = {
     },
     "attacker": {
         "enabled": False,
-        "mode": "static",         # static | push | takeover | meaconing
+        "mode": "static",         # static | push | takeover | meaconing | time_push
         "start_s": 0.0,           # attack start, seconds from the first sample
         "power_advantage_db": 6.0,
         "prns": [],               # spoofed PRNs; empty = every PRN visible at the claimed position
@@ -44,13 +44,17 @@ DEFAULTS: dict = {
         "offset_up_m": 0.0,
         "push_speed_m_s": 5.0,    # push/takeover: drag-off speed of the claimed position
         "push_azimuth_deg": 90.0,
-        "push_hold_s": 5.0,       # takeover: seconds aligned before the drag-off begins
+        "push_hold_s": 5.0,       # takeover, time_push: seconds aligned before the drag-off (the push) begins
         "max_offset_m": 5000.0,
-        "power_ramp_s": 10.0,     # takeover: seconds to ramp from ramp_start_db to the full advantage
+        "power_ramp_s": 10.0,     # takeover, time_push: seconds to ramp from ramp_start_db to the full advantage
         "ramp_start_db": -10.0,
         "time_offset_s": 0.0,     # the spoofer's clock error, common to every spoofed PRN: 0 = synchronized to GPS
                                   # time, as a competent attacker is (5e-6: an unsynchronised spoofer)
         "delay_s": 2e-6,          # meaconing: the replay delay
+        "time_push_rate_s_s": 2.5e-8,  # time_push: a sky-aligned copy of every signal (code and carrier), delayed
+                                  # by this rate x (t - start_s - push_hold_s): the position stays, the clock walks
+                                  # (TEXBAT-style; 25 ns/s), up to max_offset_m / c
+        "time_push_ramp_s": 5.0,  # time_push: the rate grows linearly from 0 over these seconds (0: a step)
         "nav_data": "same",       # same | altered (spoofed PRNs broadcast a shifted satellite clock)
         "altered_clock_s": 1e-6,
         "carrier_offset_hz": 0.0, # spoofer oscillator frequency error
@@ -103,7 +107,9 @@ def check(cfg: dict) -> None:
     need(-90 <= r["lat_deg"] <= 90 and -180 <= r["lon_deg"] <= 360, "receiver latitude/longitude out of range")
     need(-1000 <= r["height_m"] <= 1e6, "receiver.height_m out of range (-1 km to 1000 km)")
     need(abs(r["clock_bias_s"]) < 1e-2 and abs(r["clock_drift_s_s"]) < 1e-5, "receiver clock bias/drift too large")
-    need(a["mode"] in ("static", "push", "takeover", "meaconing"), f"attacker.mode = '{a['mode']}'")
+    need(a["mode"] in ("static", "push", "takeover", "meaconing", "time_push"), f"attacker.mode = '{a['mode']}'")
+    need(0 <= a["time_push_rate_s_s"] <= 1e-5, "attacker.time_push_rate_s_s must lie in [0, 1e-5] s/s")
+    need(a["time_push_ramp_s"] >= 0, "attacker.time_push_ramp_s must not be negative")
     need(-3 <= a["power_advantage_db"] <= 20, f"attacker.power_advantage_db = {a['power_advantage_db']:g} (-3 to +20 dB)")
     need(all(isinstance(p, int) and 1 <= p <= 32 for p in a["prns"]), "attacker.prns are PRNs 1-32")
     need(a["start_s"] >= 0, "attacker.start_s must not be negative")

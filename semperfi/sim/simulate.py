@@ -61,6 +61,7 @@ class ReceiverTruth:
     clock_bias_s: float
     clock_drift_s_s: float
     claimed_ecef_m: np.ndarray | None   # the attacker's claimed position while it transmits
+    claimed_delay_s: float | None = None  # the delay common to every spoofed signal while it transmits
 
 
 class Simulator:
@@ -151,9 +152,9 @@ class Simulator:
         code_m[:], carrier_m[:], el[:] = legit.code_m, legit.carrier_m, legit.elevation_rad
         claimed = None
         if self.attack:
-            delay = self.attack.time_offset_s
+            delay = self.attack.delay_s(tau_s)
             claimed = self.attack.claimed_position(tau_s - delay, pos, self.start_pos)
-            spoof = arrival(self._stack, claimed, vel if self.attack.mode in ("push", "takeover") else np.zeros(3),
+            spoof = arrival(self._stack, claimed, vel if self.attack.mode in ("push", "takeover", "time_push") else np.zeros(3),
                             t_gps.tow_s - delay, self.iono, self.cfg["constellation"]["troposphere"])
             is_spoof = np.array([s.source == "spoof" for s in self.signals])
             code_m[is_spoof] = spoof.code_m[is_spoof] + SPEED_OF_LIGHT_M_S * delay
@@ -161,8 +162,9 @@ class Simulator:
             el[is_spoof] = spoof.elevation_rad[is_spoof]
         extra = np.array([s.extra_delay_m for s in self.signals])
         clock_m = SPEED_OF_LIGHT_M_S * bias
+        on = self.attack is not None and self.attack.active(tau_s)
         truth = ReceiverTruth(tau_s, t_gps.week, t_gps.tow_s, pos, vel, bias, self.clock_drift,
-                              claimed if self.attack and self.attack.active(tau_s) else None)
+                              claimed if on else None, self.attack.delay_s(tau_s) if on else None)
         return code_m + extra + clock_m, carrier_m + extra + clock_m, el, truth
 
     def _cn0_dbhz(self, tau_s: float, el_rad: np.ndarray) -> np.ndarray:
@@ -232,14 +234,16 @@ class Simulator:
 
     def _attack_events(self, tau_s: float, announced: set, on_event) -> None:
         a = self.attack
-        phases = [("attack_start", a.start_s), ("drag_off_start", a.start_s + a.push_hold_s if a.mode in ("push", "takeover") else None),
+        phases = [("attack_start", a.start_s),
+                  ("drag_off_start", a.start_s + a.push_hold_s if a.mode in ("push", "takeover", "time_push") else None),
                   ("full_power", a.start_s + a.power_ramp_s if a.power_ramp_s > 0 else None)]
         for name, t in phases:
             if t is not None and name not in announced and tau_s >= t:
                 announced.add(name)
                 on_event({"t_rx_s": round(tau_s, 6), "event": name, "mode": a.mode,
                           "prns": [s.prn for s in self.signals if s.source == "spoof"],
-                          "power_advantage_db": a.power_advantage_db})
+                          "power_advantage_db": a.power_advantage_db,
+                          **({"time_push_rate_s_s": a.time_push_rate_s_s} if a.mode == "time_push" else {})})
 
 
 def make_live_simulator(cfg: dict) -> tuple[Simulator, LiveMotion]:

@@ -11,7 +11,7 @@ from .simulate import ReceiverTruth, SignalTruth
 
 RECEIVER_COLUMNS = ["t_rx_s", "gps_week", "gps_tow_s", "lat_deg", "lon_deg", "height_m", "x_m", "y_m", "z_m",
                     "vx_m_s", "vy_m_s", "vz_m_s", "clock_bias_s", "clock_drift_s_s",
-                    "claimed_lat_deg", "claimed_lon_deg", "claimed_height_m"]
+                    "claimed_lat_deg", "claimed_lon_deg", "claimed_height_m", "claimed_delay_s"]
 SIGNAL_COLUMNS = ["t_rx_s", "prn", "source", "code_phase_chips", "doppler_hz", "carrier_phase_cycles", "cn0_dbhz",
                   "pseudorange_m", "elevation_deg"]
 
@@ -41,7 +41,8 @@ class TruthLog:
         self._receiver.writerow([f"{rx.t_rx_s:.6f}", rx.gps_week, f"{rx.gps_tow_s:.9f}", f"{np.degrees(lat):.9f}",
                                  f"{np.degrees(lon):.9f}", f"{h:.3f}", *(f"{v:.3f}" for v in rx.pos_ecef_m),
                                  *(f"{v:.4f}" for v in rx.vel_ecef_m_s), f"{rx.clock_bias_s:.12e}",
-                                 f"{rx.clock_drift_s_s:.6e}", *claimed])
+                                 f"{rx.clock_drift_s_s:.6e}", *claimed,
+                                 "" if rx.claimed_delay_s is None else f"{rx.claimed_delay_s:.12e}"])
         for s in signals:
             self._signals.writerow([f"{s.t_rx_s:.6f}", s.prn, s.source, f"{s.code_phase_chips:.6f}",
                                     f"{s.doppler_hz:.4f}", f"{s.carrier_phase_cycles:.6f}",
