@@ -18,9 +18,11 @@ class InternalError(SemperFiError):
 def describe(exc: BaseException) -> dict:
     """What an internal_error event records to reproduce a failure: the exception and the innermost frame of ours."""
     frames = traceback.extract_tb(exc.__traceback__)
-    ours = [f for f in frames if "semperfi" in f.filename] or frames
-    where = f"{ours[-1].filename.rsplit('semperfi/', 1)[-1]}:{ours[-1].lineno} in {ours[-1].name}" if ours else "?"
-    return {"error": f"{type(exc).__name__}: {exc}", "where": where}
+    if not frames:
+        return {"error": f"{type(exc).__name__}: {exc}", "where": "?"}
+    f = frames[-1]   # where it was raised
+    name = f.filename.rsplit("semperfi/", 1)[-1] if "semperfi/" in f.filename else f.filename.rsplit("/", 1)[-1]
+    return {"error": f"{type(exc).__name__}: {exc}", "where": f"{name}:{f.lineno} in {f.name}"}
 
 
 def log_internal_error(events, t_s: float, exc: BaseException) -> str:
