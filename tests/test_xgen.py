@@ -37,6 +37,19 @@ def test_the_mix_puts_gps_sdr_sim_satellites_at_the_c_n0_asked_for(tmp_path, brd
     assert abs(cn0 - case.cn0_dbhz) < 0.5, f"C/N0 {cn0:.2f} dB-Hz (amplitude {amplitude:.1f}, noise {sigma:.1f})"
 
 
+def test_a_recording_starting_on_a_subframe_1_boundary_under_attack_gives_fixes_without_assistance(tmp_path,
+                                                                                                       brdc_path):
+    """2022-01-01 00:00:00 starts a frame: the first subframe 1 is missed while the channels synchronise, the next
+    comes 30 s later. With the rectifier on and no navigation file, ranges from the spoofer's message came before any
+    legitimate subframe 1 had said the week, and every such run crashed about 16 s in; the week now comes from any
+    subframe 1 (the spoofer's too), and a fix waits for it."""
+    case = Case(PLACES["boston"], 1000.0, 6.0, duration_s=26.0)
+    r = run_case(case, brdc_path, tmp_path, assisted=False)
+    print(r)
+    assert r["fixes"] > 0 and r["called_good_but_wrong"] == 0, r
+    assert r["last_mean_m"] < 5.0, r
+
+
 def test_a_synchronized_attack_from_another_generator_is_recovered(tmp_path, brdc_path):
     """The spoofer switches on at 6 s, once the receiver holds the legitimate signals: its peaks are the newcomers."""
     case = Case(PLACES["boston"], 1000.0, 6.0, duration_s=24.0, spoof_start_s=6.0)
