@@ -406,9 +406,12 @@ def fly(url, out_path, heading_deg, timeout_s) -> None:
 @click.option("--link-key", "link_key_path", required=True, type=click.Path(dir_okay=False))
 @click.option("--vehicle", "url", default="udpout:127.0.0.1:14550", show_default=True)
 @click.option("--maneuvers", type=click.IntRange(1, 100), default=1, show_default=True)
-def companion(port, link_key_path, url, maneuvers) -> None:
+@click.option("--test-seed", type=int, hidden=True,
+              help="TESTS ONLY: seed the maneuver draw, which makes it predictable to an attacker; never in flight")
+def companion(port, link_key_path, url, maneuvers, test_seed) -> None:
     """The flight side: serve the receiver's link, answer alarms with maneuvers flown over MAVLink (JSON lines)."""
     import json
+    import random
 
     from .flight.companion import serve
     from .flight.link import LinkError
@@ -418,7 +421,8 @@ def companion(port, link_key_path, url, maneuvers) -> None:
         sys.stdout.flush()
 
     try:
-        serve(port, _read_key(link_key_path), url, report, max_maneuvers=maneuvers)
+        serve(port, _read_key(link_key_path), url, report, max_maneuvers=maneuvers,
+              rng=random.Random(test_seed) if test_seed is not None else None)
     except (LinkError, ValueError, OSError) as exc:
         _fail(str(exc))
 

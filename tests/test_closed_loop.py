@@ -1,8 +1,8 @@
 """Claims about the closed loop: world, receiver and flight side in their own processes, over the pipe, the
 authenticated link and MAVLink. An attacker +6 dB from the first sample (synchronized, 1 km east): the receiver
-waits for the maneuver instead of guessing, the flight side flies a pseudorandom maneuver, the IMU track decides the
-peaks, the spoofer is cancelled, and the receiver ends on the moving vehicle's true position; no fix is called good
-while it is wrong."""
+waits for the maneuver instead of guessing, the flight side flies a pseudorandom maneuver that moves along every
+PRN's line of sight (seeded here, so the run repeats), the IMU track decides the peaks, the spoofer is cancelled, and
+the receiver ends on the moving vehicle's true position; no fix is called good while it is wrong."""
 
 import numpy as np
 import pytest
@@ -16,7 +16,7 @@ pytest.importorskip("pymavlink", reason="pymavlink is not installed")
 @pytest.fixture(scope="module")
 def loop(tmp_path_factory, brdc_path):
     return run_closed_loop(tmp_path_factory.mktemp("loop"), 56.0, nav_path=str(brdc_path),
-                           sets=['time.start="2022-01-01T00:00:27"'])
+                           sets=['time.start="2022-01-01T00:00:27"'], maneuver_seed=1)
 
 
 def test_the_flight_side_flies_a_maneuver_on_the_receivers_alarm(loop):
@@ -24,6 +24,7 @@ def test_the_flight_side_flies_a_maneuver_on_the_receivers_alarm(loop):
     drawn, done = loop.first("maneuver_drawn", "flight"), loop.first("maneuver_done", "flight")
     assert drawn and done, loop.flight
     assert drawn["duration_s"] <= 20.0 and drawn["end_distance_m"] >= 30.0 and drawn["path_m"] <= 50.0
+    assert drawn["decidable"] and len(drawn["spread_m"]) >= 8, drawn   # moves along every PRN the receiver tracks
     pending = loop.first("identification_pending")
     alarm = loop.first("alarm", "flight")
     assert pending is not None and alarm["payload"]["t_s"] >= pending["t_rx_s"], "no guess: the receiver waited"
@@ -42,8 +43,8 @@ def test_the_verdict_names_the_spoofers_peaks_and_the_receiver_recovers(loop):
         by_prn.setdefault(p["prn"], []).append((p["decided"], p["adversarial"]))
     cleared = [prn for prn, v in by_prn.items() if v.count((True, False)) == 2]
     assert not cleared, f"two peaks of one PRN both said to follow the vehicle: {by_prn}"
-    # the maneuver is random: a line of sight it barely moved along leaves that peak undecided, so a PRN counts as
-    # told apart when one peak was shown not to follow and its twin was not
+    # a PRN is told apart when one peak was shown not to follow (the maneuver moved along every line of sight: the
+    # six PRNs with two peaks followed apart, here)
     apart = [prn for prn, v in by_prn.items() if len(v) == 2 and v.count((True, True)) == 1]
     assert len(apart) >= 4, by_prn
     t, err = loop.fix_errors_m("recovered")

@@ -3,7 +3,7 @@ import struct
 
 import pytest
 
-from semperfi.flight.link import MAX_FRAME_BYTES, Codec, LinkError, receive, send
+from semperfi.flight.link import MAX_FRAME_BYTES, Codec, LinkError, alarm_lines_of_sight, receive, send
 
 KEY = b"0123456789abcdef0123456789abcdef"
 
@@ -72,3 +72,37 @@ def test_oversized_length_prefix_rejected_without_reading():
         receive(b, Codec(KEY), timeout_s=1.0)
     for s in (a, b, srv):
         s.close()
+
+
+def test_an_alarm_carries_lines_of_sight_and_an_old_peers_carries_none():
+    tx, rx = pair()
+    sky = [{"prn": 7, "az_deg": 206.4, "el_deg": 60.0}, {"prn": 13, "az_deg": 310.6, "el_deg": -2}]
+    kind, payload = rx.decode(tx.encode("alarm", {"reason": "two peaks", "t_s": 3.0, "lines_of_sight": sky})[4:])
+    assert kind == "alarm" and alarm_lines_of_sight(payload) == [(7, 206.4, 60.0), (13, 310.6, -2.0)]
+    assert alarm_lines_of_sight({"reason": "two peaks"}) == []
+
+
+@pytest.mark.parametrize("lines_of_sight", [
+    {"prn": 7},                                                          # not a list
+    [{"prn": p, "az_deg": 0.0, "el_deg": 45.0} for p in range(1, 34)],   # more than 32
+    [[7, 206.4, 60.0]],                                                  # not an object
+    [{"prn": 7, "az_deg": 206.4}],                                       # missing elevation
+    [{"prn": True, "az_deg": 206.4, "el_deg": 60.0}],
+    [{"prn": 0, "az_deg": 206.4, "el_deg": 60.0}],
+    [{"prn": 7.0, "az_deg": 206.4, "el_deg": 60.0}],
+    [{"prn": "7", "az_deg": 206.4, "el_deg": 60.0}],
+    [{"prn": 7, "az_deg": float("nan"), "el_deg": 60.0}],
+    [{"prn": 7, "az_deg": 206.4, "el_deg": float("inf")}],
+    [{"prn": 7, "az_deg": 206.4, "el_deg": 90.5}],
+    [{"prn": 7, "az_deg": -0.1, "el_deg": 60.0}],
+    [{"prn": 7, "az_deg": 10 ** 400, "el_deg": 60.0}],
+    [{"prn": 7, "az_deg": "206.4", "el_deg": 60.0}],
+    [{"prn": 7, "az_deg": 206.4, "el_deg": False}],
+    [{"prn": 7, "az_deg": 206.4, "el_deg": 60.0}, {"prn": 7, "az_deg": 10.0, "el_deg": 20.0}],   # twice
+])
+def test_hostile_lines_of_sight_are_rejected(lines_of_sight):
+    tx, rx = pair()
+    # through the codec: JSON carries NaN, Infinity and huge integers to the other side as they are
+    _, payload = rx.decode(tx.encode("alarm", {"reason": "x", "lines_of_sight": lines_of_sight})[4:])
+    with pytest.raises(LinkError, match="lines_of_sight"):
+        alarm_lines_of_sight(payload)

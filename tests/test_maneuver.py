@@ -1,9 +1,15 @@
 import math
+import random
 
 import numpy as np
 import pytest
 
-from semperfi.flight.maneuver import ManeuverLimits, check, draw
+from semperfi.defense.identifier import MIN_SIGNATURE_M, ImuTrack, LineOfSight, PeakHistory, identify_peaks
+from semperfi.flight.maneuver import REQUIRED_SPREAD_M, ManeuverLimits, check, draw, spread_m, unit_ned
+
+# the closed loop's sky (Boston, 2022-01-01 00:00:27): azimuth, elevation of its 8 PRNs
+SKY = [(154.4, 48.3), (206.4, 60.0), (53.2, 42.8), (310.6, 13.1), (299.3, 36.0), (242.9, 20.8), (99.7, 58.9),
+       (58.2, 11.6)]
 
 
 def test_constraints_over_1000_draws():
@@ -35,6 +41,8 @@ def test_check_flags_a_straight_short_maneuver():
     t, n, e, d = plan_trajectory(legs, limits)
     bad = check(Maneuver(legs, t, n, e, d), limits)
     assert {"straight", "end distance", "corridor"} <= set(bad)
+    climb = (Leg(3.0, 0.0, -1.5, 8.0), Leg(0.0, 3.0, -1.5, 8.0))
+    assert "altitude" in check(Maneuver(climb, *plan_trajectory(climb, limits)), limits, altitude_m=100.0)
 
 
 def test_rejects_bad_limits():
@@ -42,3 +50,60 @@ def test_rejects_bad_limits():
         ManeuverLimits(max_duration_s=30.0)
     with pytest.raises(ValueError):
         draw(altitude_m=5.0)
+    with pytest.raises(ValueError):
+        draw(altitude_m=130.0)   # above the ceiling
+
+
+def test_a_seeded_draw_repeats():
+    a, b = draw(rng=random.Random(7)), draw(rng=random.Random(7))
+    assert a.legs == b.legs and np.array_equal(a.down_m, b.down_m)
+    assert draw(rng=random.Random(8)).legs != a.legs
+
+
+def test_the_spread_is_the_signature_the_identifier_decides_on():
+    """A legitimate peak, its range following the maneuver exactly, is decided when the maneuver's spread along its
+    line of sight reaches MIN_SIGNATURE_M, and left undecided below."""
+    u = [unit_ned(az, el) for az, el in SKY]
+    m = draw(rng=random.Random(3))   # no lines of sight: moves little along some
+    spread = spread_m(m, u)
+    assert spread.min() < MIN_SIGNATURE_M - 0.2 and spread.max() > MIN_SIGNATURE_M + 0.2, spread
+    p = np.column_stack([m.north_m, m.east_m, m.down_m])
+    clock_m = 40.0 * m.t_s
+    peaks = [PeakHistory(k + 1, 0, m.t_s, 2.2e7 - p @ uk + clock_m) for k, uk in enumerate(u)]
+    los = {k + 1: LineOfSight(k + 1, tuple(uk), m.t_s, np.zeros_like(m.t_s)) for k, uk in enumerate(u)}
+    verdicts = identify_peaks(peaks, los, ImuTrack(m.t_s, m.north_m, m.east_m, m.down_m))
+    for v, s in zip(verdicts, spread):
+        if abs(s - MIN_SIGNATURE_M) > 0.2:
+            assert v.decided == (s >= MIN_SIGNATURE_M) and not v.adversarial, (v, s)
+
+
+def test_a_draw_that_moves_little_along_a_line_of_sight_is_rejected():
+    u = [unit_ned(az, el) for az, el in SKY]
+    free = draw(rng=random.Random(3))
+    weak = u[int(np.argmin(spread_m(free, u)))]
+    assert spread_m(free, [weak])[0] < REQUIRED_SPREAD_M
+    # the same random source, told the line of sight: that draw is refused and the one flown moves along it
+    told = draw(lines_of_sight=[weak], rng=random.Random(3))
+    assert spread_m(told, [weak])[0] >= REQUIRED_SPREAD_M
+    assert check(told, ManeuverLimits()) == []
+
+
+def test_accepted_draws_move_enough_along_every_line_of_sight():
+    limits = ManeuverLimits()
+    for seed in range(60):
+        turn_deg, heading = seed * 37.0, seed * 0.7   # the closed loop's sky, turned round: 60 geometries
+        u = [unit_ned((az + turn_deg) % 360.0, el) for az, el in SKY]
+        m = draw(limits, track_heading_rad=heading, lines_of_sight=u, rng=random.Random(seed))
+        assert spread_m(m, u).min() >= REQUIRED_SPREAD_M, seed
+        assert check(m, limits, heading) == []
+        assert np.max(np.abs(np.diff(m.down_m))) / limits.dt_s <= limits.max_vertical_speed_mps + 1e-9
+
+
+def test_without_an_acceptable_draw_the_best_is_flown():
+    """A vehicle that may barely climb cannot move 4.4 m along the zenith: the best draw of the search is flown."""
+    limits = ManeuverLimits(max_vertical_speed_mps=0.1)
+    u = [unit_ned(0.0, 90.0), unit_ned(30.0, 20.0)]
+    few = draw(limits, lines_of_sight=u, rng=random.Random(5), max_tries=5)
+    more = draw(limits, lines_of_sight=u, rng=random.Random(5), max_tries=200)
+    assert check(few, limits) == [] and check(more, limits) == []
+    assert spread_m(few, u).min() <= spread_m(more, u).min() < REQUIRED_SPREAD_M

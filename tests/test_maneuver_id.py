@@ -4,16 +4,21 @@ attacker on from the first sample, and the INS-only track the vehicle logged (`s
 import csv
 import functools
 import json
+from types import SimpleNamespace
 
 import numpy as np
 
 from semperfi.cli import _receiver_config
 from semperfi.defense.defended import DefendedReceiver
 from semperfi.defense.imu_track import read_imu_csv
+from semperfi.defense.maneuver_id import LinkedManeuver, sky
 from semperfi.eval.flightpath import hover_maneuver_hover, ins_track, write_motion_csv
 from semperfi.flight.deadreckoning import write_track_csv
-from semperfi.gps.geometry import enu_rotation
+from semperfi.flight.link import alarm_lines_of_sight
+from semperfi.gps.ephemeris import satellite_position
+from semperfi.gps.geometry import azimuth_elevation, enu_rotation, geodetic_to_ecef
 from semperfi.receiver.run import run_file
+from semperfi.sim.constellation import build_constellation
 from semperfi.sim.run import simulate_to_file
 from semperfi.sim.scenario import load_scenario
 
@@ -66,3 +71,31 @@ def test_run_refuses_a_malformed_imu_track_in_one_line(tmp_path):
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and r.stderr.strip().count("\n") == 0, (r.returncode, r.stderr)
     assert "header must be t_s,north_m,east_m,down_m" in r.stderr
+
+
+class _Link:
+    def __init__(self):
+        self.sent = []
+
+    def send(self, kind, payload):
+        self.sent.append((kind, payload))
+
+    def poll(self):
+        return []
+
+
+def test_the_alarm_carries_each_prns_line_of_sight_from_the_fix(brdc_path):
+    c = build_constellation(load_scenario(None, [f'constellation.rinex="{brdc_path}"',
+                                                 'time.start="2022-01-01T00:00:27"']))
+    pos = geodetic_to_ecef(np.radians(LAT), np.radians(LON), H + 50.0)
+    fix = SimpleNamespace(t_rx_s=12.0, gps_tow_s=c.start.tow_s + 12.0, pos_ecef_m=pos, lat_deg=LAT, lon_deg=LON)
+    ephemeris_of = lambda prn, tow_s: c.ephemerides.get(prn)   # noqa: E731
+    link = _Link()
+    LinkedManeuver(link, 2e6, sky=lambda: sky([1, 7, 30, 33], ephemeris_of, fix)).request(12.0, 7)
+    kind, payload = link.sent[0]
+    got = alarm_lines_of_sight(payload)   # what the flight side accepts
+    assert kind == "alarm" and [prn for prn, _, _ in got] == [1, 7, 30], "PRN 33 has no ephemeris"
+    for prn, az_deg, el_deg in got:
+        sat = satellite_position(c.ephemerides[prn], np.array([fix.gps_tow_s - 0.075]))
+        az, el = azimuth_elevation(pos, sat)
+        assert abs(az_deg - np.degrees(az[0])) < 0.01 and abs(el_deg - np.degrees(el[0])) < 0.01, prn

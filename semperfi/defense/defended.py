@@ -17,7 +17,7 @@ from .canceller import JOINT_WITHIN_CHIPS
 from .clock_guard import ClockGuard
 from .continuity import Continuity
 from .guard import SpoofGuard
-from .maneuver_id import LinkedManeuver, ManeuverIdentifier
+from .maneuver_id import LinkedManeuver, ManeuverIdentifier, sky
 from .policy import POWER_MARGIN_DB
 from .rectifier import Rectifier
 
@@ -57,8 +57,8 @@ class DefendedReceiver:
         on request and sends its IMU track back."""
         self.on_fix, self.events = on_fix, events
         maneuver = ManeuverIdentifier(imu_track, fs_hz, if_hz) if imu_track is not None else \
-            LinkedManeuver(flight_link, fs_hz, if_hz, ready=lambda: self.inner.last_fix is not None) \
-            if flight_link is not None else None
+            LinkedManeuver(flight_link, fs_hz, if_hz, ready=lambda: self.inner.last_fix is not None,
+                           sky=self._sky) if flight_link is not None else None
         self.guard = SpoofGuard(cfg, fs_hz, if_hz, events, on_cancel=self._on_cancel, maneuver=maneuver,
                                 nav_context=lambda: (self.inner.ephemeris_at, self.inner.last_fix),
                                 continuing=self._continuing if imu_track is not None else None)
@@ -76,6 +76,10 @@ class DefendedReceiver:
             if imu_track is not None and self.guard.d["mode"] == "full" else None
         self.first_recovered_t_s: float | None = None
         self._next_beat_check = 0
+
+    def _sky(self) -> list[dict]:
+        """The lines of sight of every PRN the maneuver will decide: the tracked ones and the alarmed ones."""
+        return sky(set(self.inner.channels) | self.guard.alarmed_prns, self.inner.ephemeris_at, self.inner.last_fix)
 
     @property
     def stats(self):

@@ -29,6 +29,11 @@ import numpy as np
 from semperfi.gps.constants import L1_WAVELENGTH_M
 
 PAPER_THRESHOLD_M = 5.0
+# a peak that agrees with the clock is cleared only if the maneuver moved it this much along its line of sight (rms
+# about the mean over the window): less, and a spoofer's peak could agree as well
+MIN_SIGNATURE_M = 3.0
+# the INS drift over a maneuver of up to 20 s at the paper's IMU level (0.44 m/s after 20 s: about 0.011 m/s^2 t^2/2)
+INS_DRIFT_M = 2.0
 MAX_POSITION_ERROR_M = 30e3   # beyond this the lines of sight themselves are wrong, not just the prediction
 
 
@@ -123,7 +128,7 @@ def paper_test(imu: ImuTrack, gps: GpsTrack, threshold_m: float = PAPER_THRESHOL
 
 
 def identify_peaks(peaks, los, imu: ImuTrack, range_tol_m: float = 4.5, doppler_tol_hz: float = 7.5,
-                   min_signature_m: float = 3.0, ambiguous_up_to: float = 1.25) -> list[PeakVerdict]:
+                   min_signature_m: float = MIN_SIGNATURE_M, ambiguous_up_to: float = 1.25) -> list[PeakVerdict]:
     """Per-peak verdict; see the module docstring.  ``los``: mapping prn -> LineOfSight."""
     peaks = list(peaks)
     if not peaks:

@@ -19,7 +19,7 @@ from ..gps.ephemeris import satellite_position
 from ..gps.geometry import enu_rotation
 from ..receiver.acquisition import Peak
 from ..receiver.tracking import NEXT_SAMPLE, Channel, LoopConfig, initial_state
-from .identifier import ImuTrack, LineOfSight, PeakHistory, PeakVerdict, identify_peaks
+from .identifier import INS_DRIFT_M, ImuTrack, LineOfSight, PeakHistory, PeakVerdict, identify_peaks
 from .imu_track import find_maneuver
 
 SEPARATE_CHIPS = 1.5          # closer peaks share a tracking loop's discriminator
@@ -27,9 +27,9 @@ FOLLOW_LOOP = LoopConfig(pull_in_ms=300, min_cn0_dbhz=20.0, lost_windows=10)
 HISTORY_EVERY_MS = 20         # one range sample per 20 ms is plenty for a 10-20 s maneuver
 SETTLE_S = 0.5                # the window's first half second: the followers' loops settle
 FLIGHT_TIME_S = 0.075         # signal flight time, for the satellites' transmit instants (its changes are negligible)
-# carrier ranges are good to millimetres: what remains is the INS drift over the maneuver (under 2 m at the paper's
-# IMU level over 20 s) -- a code-range tolerance (4.5 m) would let a spoofed peak with a small signature pass
-CARRIER_RANGE_TOL_M = 2.5
+# carrier ranges are good to millimetres: what remains is the INS drift over the maneuver -- a code-range tolerance
+# (4.5 m) would let a spoofed peak with a small signature pass
+CARRIER_RANGE_TOL_M = INS_DRIFT_M + 0.5
 
 
 class PeakFollower:
@@ -106,6 +106,17 @@ def lines_of_sight(prns, ephemeris_of, fix, t_s: np.ndarray) -> dict[int, LineOf
     return out
 
 
+def sky(prns, ephemeris_of, fix) -> list[dict]:
+    """Azimuth and elevation (degrees) from the fix of each PRN with an ephemeris: the alarm carries them so the flight
+    side draws a maneuver that moves along every one (flight/link.py)."""
+    out = []
+    for prn, los in sorted(lines_of_sight(prns, ephemeris_of, fix, np.array([fix.t_rx_s, fix.t_rx_s + 1.0])).items()):
+        north, east, down = los.u_ned
+        out.append({"prn": prn, "az_deg": round(float(np.degrees(np.arctan2(east, north)) % 360.0), 2),
+                    "el_deg": round(float(np.degrees(np.arcsin(np.clip(-down, -1.0, 1.0)))), 2)})
+    return out
+
+
 class ManeuverIdentifier:
     """Follows candidate peaks through the maneuver window of an INS track, and identifies them at its end."""
 
@@ -176,20 +187,21 @@ class LinkedManeuver(ManeuverIdentifier):
     payload) and poll() -> [(type, payload)], and is built outside the defence, which never imports flight/).
 
     On the first alarm that waits for it, an "alarm" goes out as soon as the receiver can use a verdict (`ready()`:
-    it has a fix, so the satellites' lines of sight are known); when the flight side answers "maneuver_request" (it
-    has drawn a maneuver and is about to fly it) every candidate peak is followed from the next look on; its
-    "maneuver_done" brings the IMU track (t_s on the receiver's sample clock: the flight side and the receiver share
-    the vehicle's time) and, once the samples have reached the track's end, the peaks are identified and a
-    "verdict" goes back. No answer within ACCEPT_S, or no track within TRACK_S of signal time: the maneuver has
-    failed, the waiting alarms are examined afresh, and the policy's guess applies from then on.
+    it has a fix, so the satellites' lines of sight are known), carrying the lines of sight of the PRNs to decide
+    (`sky()`, as the function sky gives them) for the flight side to move along; when the flight side answers
+    "maneuver_request" (it has drawn a maneuver and is about to fly it) every candidate peak is followed from the
+    next look on; its "maneuver_done" brings the IMU track (t_s on the receiver's sample clock: the flight side and
+    the receiver share the vehicle's time) and, once the samples have reached the track's end, the peaks are
+    identified and a "verdict" goes back. No answer within ACCEPT_S, or no track within TRACK_S of signal time: the
+    maneuver has failed, the waiting alarms are examined afresh, and the policy's guess applies from then on.
     """
 
     ACCEPT_S = 5.0
     TRACK_S = 60.0
 
-    def __init__(self, channel, fs_hz: float, if_hz: float = 0.0, ready=lambda: True):
+    def __init__(self, channel, fs_hz: float, if_hz: float = 0.0, ready=lambda: True, sky=lambda: []):
         super().__init__(None, fs_hz, if_hz)
-        self.channel, self.ready = channel, ready
+        self.channel, self.ready, self.sky = channel, ready, sky
         self.wanted: tuple[float, int] | None = None
         self.requested_s: float | None = None
         self.accepted_s: float | None = None
@@ -204,7 +216,8 @@ class LinkedManeuver(ManeuverIdentifier):
     def _poll(self, t_s: float) -> None:
         if self.wanted is not None and self.requested_s is None and self.failed is None and self.ready():
             self.requested_s = t_s
-            self.channel.send("alarm", {"reason": f"auxiliary peak on PRN {self.wanted[1]}", "t_s": t_s})
+            self.channel.send("alarm", {"reason": f"auxiliary peak on PRN {self.wanted[1]}", "t_s": t_s,
+                                        "lines_of_sight": self.sky()})
         for kind, payload in self.channel.poll():
             if kind == "maneuver_request" and self.requested_s is not None and self.accepted_s is None:
                 self.accepted_s, self.maneuver_id = t_s, str(payload.get("maneuver_id", ""))[:64]
@@ -212,7 +225,10 @@ class LinkedManeuver(ManeuverIdentifier):
                 try:
                     self.track = ImuTrack(*(np.asarray(payload[k], dtype=float)
                                             for k in ("t_s", "north_m", "east_m", "down_m")))
-                    self.window_s = find_maneuver(self.track) or (float(self.track.t_s[0]), float(self.track.t_s[-1]))
+                    # the flight side's track is the maneuver, start to stop: all of it is the window (the flight
+                    # side drew it to move enough along every line of sight over all of it); find_maneuver, for long
+                    # recordings, would cut one at a reversal's slow turn
+                    self.window_s = (float(self.track.t_s[0]), float(self.track.t_s[-1]))
                 except (KeyError, TypeError, ValueError) as exc:
                     self.failed = f"unusable IMU track ({exc})"[:200]
         if self.failed is None and self.requested_s is not None:

@@ -88,10 +88,12 @@ def _free_port(kind=socket.SOCK_STREAM) -> int:
 
 
 def run_closed_loop(out_dir: str | Path, duration_s: float, sets: list[str] = (), nav_path: str | None = None,
-                    timeout_s: float = 1800.0, tee: bool = False, show: bool = False, seed: int = 0) -> ClosedLoop:
+                    timeout_s: float = 1800.0, tee: bool = False, show: bool = False, seed: int = 0,
+                    maneuver_seed: int | None = None) -> ClosedLoop:
     """tee: the world also keeps its samples in out_dir/world.bin (a conventional receiver can run on them).
     show: the receiver draws its live channel table on this process's terminal (its errors then go there too).
-    seed: the vehicle's (wind, IMU errors) and the signals' noise; the maneuver is the OS's cryptographic draw."""
+    seed: the vehicle's (wind, IMU errors) and the signals' noise; the maneuver is the OS's cryptographic draw,
+    unless maneuver_seed (tests only: a seeded maneuver is predictable) makes it repeatable."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     key_path = out / "link.key"
@@ -104,7 +106,8 @@ def run_closed_loop(out_dir: str | Path, duration_s: float, sets: list[str] = ()
         scenario += [f'constellation.rinex="{nav_path}"']
     me = [sys.executable, "-m", "semperfi.cli"]
     flight = subprocess.Popen(me + ["companion", "--port", str(link_port), "--link-key", str(key_path),
-                                    "--vehicle", f"udpout:127.0.0.1:{mavlink_port}"],
+                                    "--vehicle", f"udpout:127.0.0.1:{mavlink_port}",
+                                    *(["--test-seed", str(maneuver_seed)] if maneuver_seed is not None else [])],
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     errors, receiver_stdout = [], ""
     try:

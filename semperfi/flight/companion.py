@@ -1,7 +1,8 @@
 """The flight side of the closed loop, as a UAV's companion computer runs it: it serves the authenticated link to
 the receiver and answers each spoofing alarm with a maneuver.
 
-On "alarm": draw a pseudorandom maneuver (the OS's cryptographic source), answer "maneuver_request", fly it over
+On "alarm": draw a pseudorandom maneuver (the OS's cryptographic source) that moves along every line of sight the
+alarm carries far enough for the receiver to decide its peaks, answer "maneuver_request", fly it over
 MAVLink in GUIDED (mavlink_pilot), answer "maneuver_done" with the IMU-only track (t_s on the vehicle's clock), and
 wait for the "verdict". Alarms that arrive while a maneuver is under way are answered by that maneuver. Every step
 is reported to `report` as a dict (the demo prints and plots them).
@@ -12,16 +13,20 @@ from __future__ import annotations
 import secrets
 import socket
 
-from .link import LinkError, LinkPeer
-from .maneuver import ManeuverLimits, draw
+import numpy as np
+
+from .link import LinkError, LinkPeer, alarm_lines_of_sight
+from .maneuver import REQUIRED_SPREAD_M, ManeuverLimits, draw, spread_m, unit_ned
 from .mavlink_pilot import Pilot, PilotError
 
 VERDICT_WAIT_S = 120.0
 
 
 def serve(port: int, key: bytes, vehicle_url: str, report, host: str = "127.0.0.1", max_maneuvers: int = 1,
-          accept_timeout_s: float = 60.0) -> None:
-    """Accept one receiver on host:port and serve it until it hangs up or max_maneuvers are flown."""
+          accept_timeout_s: float = 60.0, rng=None) -> None:
+    """Accept one receiver on host:port and serve it until it hangs up or max_maneuvers are flown.
+
+    rng: a seeded random.Random for tests only -- a seeded maneuver is predictable; None draws from the OS source."""
     srv = socket.socket()
     srv.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     srv.bind((host, port))
@@ -43,12 +48,19 @@ def serve(port: int, key: bytes, vehicle_url: str, report, host: str = "127.0.0.
             if msg is None or msg[0] != "alarm":
                 continue
             report({"event": "alarm", "payload": msg[1]})
-            maneuver = draw(ManeuverLimits())
+            try:
+                sky = alarm_lines_of_sight(msg[1])
+            except LinkError as exc:
+                report({"event": "alarm_rejected", "error": str(exc)})
+                continue
+            lines_of_sight = [unit_ned(az, el) for _, az, el in sky]
+            maneuver = draw(ManeuverLimits(), lines_of_sight=lines_of_sight, rng=rng)
             maneuver_id = secrets.token_hex(8)
             peer.send("maneuver_request", {"maneuver_id": maneuver_id})
             report({"event": "maneuver_drawn", "maneuver_id": maneuver_id, "legs": len(maneuver.legs),
                     "duration_s": round(maneuver.duration_s, 2), "path_m": round(maneuver.path_length_m, 1),
-                    "end_distance_m": round(maneuver.end_distance_m, 1)})
+                    "end_distance_m": round(maneuver.end_distance_m, 1),
+                    **_spreads(maneuver, [prn for prn, _, _ in sky], lines_of_sight)})
             pilot = Pilot(vehicle_url, timeout_s=10.0)
             try:
                 result = pilot.fly(maneuver)
@@ -69,6 +81,14 @@ def serve(port: int, key: bytes, vehicle_url: str, report, host: str = "127.0.0.
             report({"event": "verdict", "payload": verdict})
     finally:
         peer.close()
+
+
+def _spreads(maneuver, prns, lines_of_sight) -> dict:
+    """How far the maneuver moves along each PRN's line of sight, and whether that is enough for every one (a draw
+    that is not was the best of a bounded search)."""
+    spread = spread_m(maneuver, lines_of_sight)
+    return {"spread_m": {str(prn): round(float(x), 2) for prn, x in zip(prns, spread)},
+            "decidable": bool(np.all(spread >= REQUIRED_SPREAD_M))}
 
 
 def _await(peer: LinkPeer, kind: str, timeout_s: float):

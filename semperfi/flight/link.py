@@ -7,7 +7,10 @@ Schema, version 1.  Each frame on the wire:
     body     = UTF-8 JSON object {"v": 1, "type": T, "seq": int, "ts": float (UNIX s), "payload": {...}}
 
 Types, in the order of one identification round:
-    "alarm"             receiver -> flight  {"reason": str}
+    "alarm"             receiver -> flight  {"reason": str, "t_s": float, "lines_of_sight": [{"prn": int,
+                                             "az_deg": float, "el_deg": float}, ...]}   (the PRNs whose peaks the
+                                             maneuver is to decide, seen from the receiver's last fix; at most 32,
+                                             absent from older peers: alarm_lines_of_sight checks them)
     "maneuver_request"  flight -> receiver  {"maneuver_id": str}      (flight has drawn the maneuver itself)
     "maneuver_done"     flight -> receiver  {"maneuver_id": str, "t_s": [...], "north_m": [...],
                                              "east_m": [...], "down_m": [...]}   (the IMU track)
@@ -24,6 +27,7 @@ import hashlib
 import hmac
 import json
 import logging
+import math
 import socket
 import struct
 import time
@@ -32,6 +36,7 @@ VERSION = 1
 MAX_FRAME_BYTES = 1 << 20
 MAX_SKEW_S = 5.0
 TYPES = {"alarm", "maneuver_request", "maneuver_done", "verdict"}
+MAX_LINES_OF_SIGHT = 32
 _MAC = 32
 log = logging.getLogger(__name__)
 
@@ -94,6 +99,31 @@ class Codec:
             raise LinkError("stale or future timestamp")
         self._seq_in = seq
         return t, payload
+
+
+def alarm_lines_of_sight(payload: dict) -> list[tuple[int, float, float]]:
+    """The (prn, azimuth deg, elevation deg) an alarm carries (none from an older peer); LinkError if malformed."""
+    entries = payload.get("lines_of_sight", [])
+    if not isinstance(entries, list) or len(entries) > MAX_LINES_OF_SIGHT:
+        raise LinkError(f"lines_of_sight: not a list of at most {MAX_LINES_OF_SIGHT}")
+    out = []
+    for entry in entries:
+        if not isinstance(entry, dict):
+            raise LinkError("lines_of_sight: an entry is not an object")
+        prn, az, el = entry.get("prn"), entry.get("az_deg"), entry.get("el_deg")
+        if not isinstance(prn, int) or isinstance(prn, bool) or not 1 <= prn <= 32:
+            raise LinkError("lines_of_sight: prn must be an integer in 1..32")
+        if not (_number(az) and _number(el) and 0.0 <= az <= 360.0 and -90.0 <= el <= 90.0):
+            raise LinkError("lines_of_sight: az_deg must lie in [0, 360] and el_deg in [-90, 90]")
+        out.append((prn, float(az), float(el)))
+    if len({prn for prn, _, _ in out}) < len(out):
+        raise LinkError("lines_of_sight: a PRN appears twice")
+    return out
+
+
+def _number(x) -> bool:
+    """A finite JSON number (json.loads lets NaN and Infinity through; a bool is not a number)."""
+    return not isinstance(x, bool) and (isinstance(x, int) or (isinstance(x, float) and math.isfinite(x)))
 
 
 def _recv_exact(sock: socket.socket, n: int) -> bytes:
