@@ -277,6 +277,10 @@ class DefendedReceiver:
                 inner.drop_channel(prn, "tracking the peak under cancellation")
         elif ch is None and sb is not None:
             inner.promote(prn, "the PRN had no channel")
+        elif ch is not None:
+            # the legitimate signal's code was pulled by the spoofer beside it until now: its carrier smoothing
+            # would carry that bias for its whole window
+            inner.restart_smoothing(prn)
 
     def _chips_from_peak(self, ch, peak, peak_sample: int) -> float:
         """How far (chips) a channel is from a peak, at its latest code epoch."""

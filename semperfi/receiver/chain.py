@@ -411,6 +411,12 @@ class Receiver:
         ch.hatch = (smoothed, cycles, n)
         return smoothed
 
+    def restart_smoothing(self, prn: int) -> None:
+        """Forget a PRN's carrier-smoothing history (its code was disturbed until now)."""
+        ch = self.channels.get(prn)
+        if ch is not None:
+            ch.hatch = None
+
     def _raim_config(self) -> IntegrityConfig:
         i, t = self.cfg.get("integrity", {}), self.cfg["tracking"]
         sigma = SigmaModel(dll_bw_hz=t["dll_bw_hz"], spacing_chips=t["spacing_chips"],
