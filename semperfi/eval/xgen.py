@@ -4,25 +4,33 @@ scene on the same GPS time (a synchronized attacker), and our own mixer adds the
 GPS-SDR-SIM (github.com/osqzss/gps-sdr-sim) is called when `gps-sdr-sim` is on PATH; nothing of it is shipped here.
 With `-p` it holds every satellite at one fixed gain: each renders I and Q from a +/-250 cosine/sine table times
 128 / 2^7, a complex amplitude of 250 per satellite, so C/N0 = 250^2 / N0 and the noise follows from the C/N0 asked
-for. The mix is int16 IQ (GNSS-SDR's ishort) with a SigMF sidecar, written in bounded memory.
+for. Without it (Case.path_loss) each satellite's gain is 128 times its free-space loss (20200 km / range) times
+the antenna pattern at its elevation (0 dB at the zenith, -8.9 dB at the horizon): the satellites then span about
+11 dB under cn0_dbhz. The mix is int16 IQ (GNSS-SDR's ishort) with a SigMF sidecar, written in bounded memory.
+
+A time push (Case.push_ns_per_s, TEXBAT-like) needs no second scene: the spoofer is the legitimate scene itself,
+sample for sample, delayed from push_from_s on by a growing d(t), code and carrier together (delayed_scene).
 """
 
 from __future__ import annotations
 
-import csv
 import math
 import shutil
 import subprocess
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 import pymap3d
+from scipy.special import i0
 
 from ..flight.deadreckoning import write_track_csv
-from ..receiver.types import TRUSTED_STATES
-from .flightpath import ins_track, write_motion_csv
+from ..flight.maneuver import Leg, ManeuverLimits, plan_trajectory
 from ..iq.sigmf import build_sigmf_meta, sidecar_path, write_sigmf_meta
+from ..receiver.types import TRUSTED_STATES
+from .flightpath import MOTION_DT_S, ins_track, write_motion_csv
+from .metrics import Truth, enu_errors, gps_time, read_fixes
 
 GPS_SDR_SIM = "gps-sdr-sim"
 AMPLITUDE = 250.0           # complex amplitude of one satellite in gps-sdr-sim's 16-bit output with -p
@@ -32,6 +40,10 @@ OUTPUT_SCALE = 0.5          # headroom in int16 for a +20 dB spoofer on a dozen 
 # (a 7 m horizontal bias in Boston on 2014-12-20), so the receivers run on them are told the generator's truth.
 RECEIVER_SETTINGS = ("pvt.troposphere=false",)
 MIX_BLOCK_S = 1.0
+F_L1_HZ = 1575.42e6
+DELAY_SUB_BLOCK_S = 1e-3     # the time push's delay is held per sub-block (25 ns/s: 25 ps); its carrier turns per sample
+SINC_HALF_TAPS = 16          # the fractional-delay interpolator: a Kaiser-windowed sinc, 2 x 16 taps
+SINC_KAISER_BETA = 8.0
 
 
 class XgenError(Exception):
@@ -67,10 +79,31 @@ class Case:
     attacker: bool = True            # False: the legitimate scene and noise only
     motion: str = ""                 # the receiver's 10 Hz trajectory (gps-sdr-sim -u: t,x,y,z ECEF); empty: static
     spoof_motion: str = ""           # the spoofer's claimed trajectory instead of a static claimed place (takeover)
+    path_loss: bool = False          # gps-sdr-sim's own path loss and antenna pattern per satellite (no -p)
+    push_ns_per_s: float = 0.0       # not 0: a time push, the spoofer the legitimate scene delayed at this rate
+    push_from_s: float = 0.0         # ... from this time on (identical to it before)
+
+    @property
+    def _when(self) -> str:
+        day, clock = self.date.split(",")
+        return day.replace("/", "") + ("" if clock == "00:00:00" else "T" + clock.replace(":", ""))
+
+    @property
+    def _power(self) -> str:
+        return ("-pl" if self.path_loss else "") + ("" if self.cn0_dbhz == 45.0 else f"-{self.cn0_dbhz:g}dBHz")
+
+    @property
+    def _length(self) -> str:
+        return f"{self.fs_hz / 1e6:g}M-{self.duration_s:g}s-s{self.seed}"
+
+    @property
+    def scene(self) -> str:
+        """What names the legitimate scene and its noise: the same for a case and its clean twin."""
+        trip = "-" + Path(self.motion).stem if self.motion else ""
+        return f"{self.place.name}-{self._when}{trip}{self._power}-{self._length}"
 
     @property
     def tag(self) -> str:
-        day = self.date.split(",")[0].replace("/", "")
         attack = f"{self.offset_m:g}m-{self.advantage_db:+g}dB" if self.attacker else "clean"
         if self.attacker and self.spoof_start_s:
             attack += f"-from{self.spoof_start_s:g}s"
@@ -78,7 +111,20 @@ class Case:
             attack += "-" + Path(self.motion).stem
         if self.attacker and self.spoof_motion:
             attack = f"{Path(self.spoof_motion).stem}-{self.advantage_db:+g}dB"
-        return f"{self.place.name}-{day}-{attack}-{self.fs_hz / 1e6:g}M-{self.duration_s:g}s-s{self.seed}"
+        if self.attacker and self.push_ns_per_s:
+            attack = f"push{self.push_ns_per_s:g}nsps-from{self.push_from_s:g}s-{self.advantage_db:+g}dB"
+        return f"{self.place.name}-{self._when}-{attack}{self._power}-{self._length}"
+
+    @property
+    def clean(self) -> Case:
+        """The same legitimate scene and noise without the attacker."""
+        return replace(self, attacker=False, offset_m=0.0, advantage_db=0.0, spoof_motion="", spoof_start_s=0.0,
+                       push_ns_per_s=0.0, push_from_s=0.0)
+
+    @property
+    def truth(self) -> Truth:
+        """The receiver's true place (and motion) and the GPS time of the first sample."""
+        return Truth(self.place.lat_deg, self.place.lon_deg, self.place.height_m, self.motion, gps_time(self.date))
 
 
 def gps_sdr_sim_path() -> str | None:
@@ -104,13 +150,19 @@ def claimed_place(case: Case) -> Place:
     return Place(f"{case.place.name}-claimed", float(lat), float(lon), float(h))
 
 
+def recording_s(case: Case) -> float:
+    """The length of a case's recording: gps-sdr-sim renders duration_s in 0.1 s blocks but one (its loop runs
+    from the second time step)."""
+    return (int(round(case.duration_s * 10)) - 1) / 10.0
+
+
 def render(nav_path: str | Path, out: Path, place: Place, case: Case, motion: str = "") -> Path:
-    """One gps-sdr-sim scene (16-bit IQ, fixed gain), static at a place or along a motion file; cached: a file of
-    the right size is reused."""
+    """One gps-sdr-sim scene (16-bit IQ, fixed gain or, with case.path_loss, gps-sdr-sim's path loss and antenna
+    pattern), static at a place or along a motion file; cached: a file of the right size is reused."""
     exe = gps_sdr_sim_path()
     if exe is None:
         raise XgenError(f"{GPS_SDR_SIM} not found on PATH (build it from github.com/osqzss/gps-sdr-sim: one gcc line)")
-    n_bytes = 4 * int(round(case.fs_hz * 0.1)) * int(round(case.duration_s * 10))
+    n_bytes = 4 * int(round(case.fs_hz * 0.1)) * int(round(recording_s(case) * 10))
     if out.is_file() and out.stat().st_size == n_bytes:
         return out
     # gps-sdr-sim keeps file names in 100-character buffers: it runs in the output's folder, on short names
@@ -121,7 +173,8 @@ def render(nav_path: str | Path, out: Path, place: Place, case: Case, motion: st
         shutil.copyfile(motion, out.parent / "motion.csv")
     where = ["-u", "motion.csv"] if motion else ["-l", f"{place.lat_deg:.9f},{place.lon_deg:.9f},{place.height_m:.3f}"]
     args = [exe, "-e", nav.name, *where,
-            "-s", f"{case.fs_hz:.0f}", "-d", f"{case.duration_s:g}", "-b", "16", "-p", "-o", out.name,
+            "-s", f"{case.fs_hz:.0f}", "-d", f"{case.duration_s:g}", "-b", "16", *([] if case.path_loss else ["-p"]),
+            "-o", out.name,
             "-t", case.date]
     r = subprocess.run(args, capture_output=True, text=True, timeout=3600, cwd=out.parent)
     if r.returncode != 0 or not out.is_file():
@@ -152,7 +205,7 @@ def takeover_motion(place: Place, hold_s: float, speed_m_s: float, duration_s: f
 
 def takeover_case(place: Place, hold_s: float, push_m_s: float, duration_s: float, work: Path,
                   advantage_db: float = 3.0, date: str = OWN_DATE, fs_hz: float = 2.6e6, receiver_m_s: float = 0.0,
-                  seed: int = 7) -> tuple[Case, Path]:
+                  seed: int = 7, path_loss: bool = False, cn0_dbhz: float = 45.0) -> tuple[Case, Path]:
     """A takeover (receiver_m_s 0) or a dynamic push (the receiver flies north at receiver_m_s) pushed east, and the
     INS track of the receiver's flight (a MEMS unit's drift, seeded) for `semperfi run --imu`."""
     t_s, ned = flown_path(duration_s, receiver_m_s)
@@ -162,8 +215,37 @@ def takeover_case(place: Place, hold_s: float, push_m_s: float, duration_s: floa
     spoof = takeover_motion(place, hold_s, push_m_s, duration_s, work / f"takeover-{stem}.csv",
                             receiver_ned=ned if receiver_m_s else None)
     case = Case(place, 0.0, advantage_db, date=date, fs_hz=fs_hz, duration_s=duration_s,
-                motion=str(motion) if motion else "", spoof_motion=str(spoof))
+                motion=str(motion) if motion else "", spoof_motion=str(spoof), path_loss=path_loss, cn0_dbhz=cn0_dbhz)
     ins = write_track_csv(work / f"ins-{case.tag}.csv", t_s, ins_track(t_s, ned, seed=seed, accel_bias_mps2=0.002))
+    return case, ins
+
+
+# a maneuver within the paper's constraints: 47.9 m flown in 17.9 s at up to 3.5 m/s, turning twice, ending 34 m
+# from its start, under a gentle acceleration limit
+MANEUVER_LEGS = (Leg(3.5, 0.5, 0.0, 5.5), Leg(0.5, 3.5, 0.0, 5.0), Leg(-1.5, 3.0, 0.0, 4.0))
+MANEUVER_ACCEL_MPS2 = 1.0
+
+
+def maneuver_case(place: Place, offset_m: float, advantage_db: float, work: Path, maneuver_at_s: float = 50.0,
+                  duration_s: float = 100.0, date: str = OWN_DATE, fs_hz: float = 2.6e6, seed: int = 7,
+                  path_loss: bool = False, cn0_dbhz: float = 45.0, legs=MANEUVER_LEGS) -> tuple[Case, Path]:
+    """A flying receiver that hovers, flies the legs from maneuver_at_s (smoothly: MANEUVER_ACCEL_MPS2) and hovers
+    again to duration_s, under a static spoofer offset_m east from the first sample; and its INS track (a MEMS
+    unit's drift, seeded) for `semperfi run --imu`."""
+    _, north, east, down = plan_trajectory(legs, ManeuverLimits(dt_s=MOTION_DT_S, max_accel_mps2=MANEUVER_ACCEL_MPS2))
+    path = np.column_stack([north, east, down])
+    n = int(round(duration_s / MOTION_DT_S)) + 1
+    before = int(round(maneuver_at_s / MOTION_DT_S))
+    if before + len(path) > n:
+        raise XgenError(f"the maneuver ({len(path) * MOTION_DT_S:g} s from {maneuver_at_s:g} s) outlasts "
+                        f"{duration_s:g} s")
+    ned = np.vstack([np.zeros((before, 3)), path, np.repeat(path[-1:], n - before - len(path), axis=0)])
+    t_s = np.arange(n) * MOTION_DT_S
+    motion = write_motion_csv(work / f"{place.name}-hover{maneuver_at_s:g}s-maneuver-{duration_s:g}s.csv", t_s, ned,
+                              place.lat_deg, place.lon_deg, place.height_m)
+    case = Case(place, offset_m, advantage_db, date=date, fs_hz=fs_hz, duration_s=duration_s, motion=str(motion),
+                path_loss=path_loss, cn0_dbhz=cn0_dbhz)
+    ins = write_track_csv(work / f"ins-{case.tag}.csv", t_s, ins_track(t_s, ned, seed=seed))
     return case, ins
 
 
@@ -172,26 +254,88 @@ def noise_sigma(fs_hz: float, cn0_dbhz: float) -> float:
     return math.sqrt(AMPLITUDE ** 2 * fs_hz / (2.0 * 10 ** (cn0_dbhz / 10.0)))
 
 
+def _kaiser_sinc(mu: float, half: int = SINC_HALF_TAPS, beta: float = SINC_KAISER_BETA) -> np.ndarray:
+    """The 2*half taps h[j] (delays k = j - half + 1) of a fractional delay by mu samples (0 <= mu < 1): a sinc
+    under a Kaiser window centred on mu, normalised to unit gain at 0 Hz."""
+    x = np.arange(-half + 1, half + 1) - mu
+    h = np.sinc(x) * i0(beta * np.sqrt(np.clip(1.0 - (x / half) ** 2, 0.0, None))) / i0(beta)
+    return h / h.sum()
+
+
+def delayed_scene(read, n0: int, n: int, fs_hz: float, delay_s, sub_block_s: float = DELAY_SUB_BLOCK_S,
+                  half: int = SINC_HALF_TAPS) -> np.ndarray:
+    """Samples n0 .. n0+n-1 of x(t - d(t)) exp(-j 2 pi f_L1 d(t)): the scene x delayed by d(t) at radio frequency
+    (code and carrier together), read(a, b) giving x's complex samples a .. b-1 (zeros outside the scene) and
+    delay_s(t) the delay in seconds at times t (s, from the first sample). The delay is held per sub-block (a
+    windowed-sinc FIR, band-limited, reading what it needs around the block: no state, bounded memory); the carrier
+    turns with d(t) sample by sample."""
+    t = (n0 + np.arange(n)) / fs_hz
+    d = np.asarray(delay_s(t), dtype=float)
+    if not d.any():
+        return read(n0, n0 + n)
+    re, im = np.empty(n), np.empty(n)
+    m = max(1, int(round(sub_block_s * fs_hz)))
+    for s in range(0, n, m):
+        e = min(n, s + m)
+        delay = float(d[(s + e - 1) // 2]) * fs_hz
+        whole = math.floor(delay)
+        h = _kaiser_sinc(delay - whole, half)
+        lo = n0 + s - whole - half
+        x = read(lo, lo + (e - s) + 2 * half - 1)
+        re[s:e] = np.convolve(x.real, h, mode="valid")     # real taps: two real convolutions
+        im[s:e] = np.convolve(x.imag, h, mode="valid")
+    return (re + 1j * im) * np.exp(-2j * np.pi * F_L1_HZ * d)
+
+
+def scene_reader(samples: np.ndarray):
+    """read(a, b) for delayed_scene over interleaved int16 IQ (a memmap): complex samples a .. b-1, zeros outside."""
+    total = samples.size // 2
+
+    def read(a: int, b: int) -> np.ndarray:
+        out = np.zeros(b - a, dtype=np.complex128)
+        lo, hi = max(a, 0), min(b, total)
+        if hi > lo:
+            iq = samples[2 * lo:2 * hi].astype(np.float64)
+            out[lo - a:hi - a] = iq[0::2] + 1j * iq[1::2]
+        return out
+    return read
+
+
+def push_delay(case: Case):
+    """The time push's delay d(t) in seconds: push_ns_per_s per second from push_from_s, 0 before."""
+    return lambda t: case.push_ns_per_s * 1e-9 * np.clip(np.asarray(t) - case.push_from_s, 0.0, None)
+
+
 def mix(legit: Path, spoof: Path | None, out: Path, case: Case) -> Path:
-    """legit + spoofer x 10^(P/20) (from spoof_start_s) + white Gaussian noise at the case's C/N0, int16 IQ."""
+    """legit + spoofer x 10^(P/20) (from spoof_start_s) + white Gaussian noise at the case's C/N0, int16 IQ. With a
+    time push (case.push_ns_per_s) the spoofer is the legitimate scene delayed by push_delay (spoof is ignored)."""
     sigma = noise_sigma(case.fs_hz, case.cn0_dbhz)
     gain = 10 ** (case.advantage_db / 20.0)
     rng = np.random.default_rng(case.seed)
     a = np.memmap(legit, dtype=np.int16, mode="r")
-    b = np.memmap(spoof, dtype=np.int16, mode="r") if spoof is not None else None
+    pushed = case.attacker and bool(case.push_ns_per_s)
+    b = None if pushed or spoof is None else np.memmap(spoof, dtype=np.int16, mode="r")
     if b is not None and b.size != a.size:
         raise XgenError(f"{legit} and {spoof} differ in length")
+    read, delay = (scene_reader(a), push_delay(case)) if pushed else (None, None)
     block = 2 * int(round(case.fs_hz * MIX_BLOCK_S))
     start = 2 * int(round(case.spoof_start_s * case.fs_hz))
     with open(out, "wb") as f:
         for i in range(0, a.size, block):
             x = a[i:i + block].astype(np.float64)
-            if b is not None and i + x.size > start:
-                s = b[i:i + block].astype(np.float64)
+            if (b is not None or pushed) and i + x.size > start:
+                if pushed:
+                    z = delayed_scene(read, i // 2, x.size // 2, case.fs_hz, delay)
+                    s = np.column_stack([z.real, z.imag]).ravel()
+                else:
+                    s = b[i:i + block].astype(np.float64)
                 s[:max(0, start - i)] = 0.0
                 x += gain * s
             x += rng.standard_normal(x.size) * sigma
-            f.write(np.clip(np.round(x * OUTPUT_SCALE), -32767, 32767).astype("<i2").tobytes())
+            np.multiply(x, OUTPUT_SCALE, out=x)       # in place: np.round(x * s) takes 20 times as long
+            np.rint(x, out=x)
+            np.clip(x, -32767, 32767, out=x)
+            f.write(x.astype("<i2").tobytes())
     meta = build_sigmf_meta(datatype="ci16_le", sample_rate_hz=case.fs_hz, dataset=out.name,
                             description=f"gps-sdr-sim legitimate + spoofer scenes mixed by semperfi.eval.xgen: {case}")
     write_sigmf_meta(sidecar_path(out), meta)
@@ -199,7 +343,7 @@ def mix(legit: Path, spoof: Path | None, out: Path, case: Case) -> Path:
 
 
 def horizontal_error_m(x_m: float, y_m: float, z_m: float, place: Place) -> float:
-    e, n, _ = pymap3d.ecef2enu(x_m, y_m, z_m, place.lat_deg, place.lon_deg, place.height_m)
+    e, n, _ = enu_errors(np.zeros(1), np.array([x_m, y_m, z_m]), Truth(place.lat_deg, place.lon_deg, place.height_m))[0]
     return float(math.hypot(e, n))
 
 
@@ -207,26 +351,23 @@ def score(fixes_csv: Path, place: Place, last_s: float = 10.0, bad_m: float = 10
     """What a receiver made of a case: horizontal error over the last seconds, first fix, wrong fixes called good,
     and the mean east and north deviation (absolute) of the fixes called good while under attack (the paper's UTM
     figure: recovered against legitimate path). With a motion file the truth is the trajectory at each fix's time
-    (10 Hz rows)."""
-    rows = list(csv.DictReader(open(fixes_csv, newline="")))
-    if not rows:
+    (10 Hz rows, interpolated). The issue-22 grid's fuller figures are semperfi.eval.metrics.run_metrics."""
+    f = read_fixes(fixes_csv)
+    if not f or not f["t_rx_s"].size:
         return {"fixes": 0}
-    t = np.array([float(r["t_rx_s"]) for r in rows])
-    pos = np.array([[float(r[k]) for k in ("x_m", "y_m", "z_m")] for r in rows]).reshape(-1, 3)
-    if motion:
-        path = np.loadtxt(motion, delimiter=",", ndmin=2)
-        pos = pos - path[np.clip(np.round(t / 0.1).astype(int), 0, len(path) - 1), 1:] + pymap3d.geodetic2ecef(
-            place.lat_deg, place.lon_deg, place.height_m)
-    east, north, _ = pymap3d.ecef2enu(pos[:, 0], pos[:, 1], pos[:, 2], place.lat_deg, place.lon_deg, place.height_m)
+    t = f["t_rx_s"]
+    enu = enu_errors(t, np.column_stack([f["x_m"], f["y_m"], f["z_m"]]),
+                     Truth(place.lat_deg, place.lon_deg, place.height_m, motion))
+    east, north = enu[:, 0], enu[:, 1]
     err = np.hypot(east, north)
-    states = [r.get("state", "nominal") for r in rows]
+    states = f["state"].astype(str) if "state" in f else np.full(t.size, "nominal")
     last = t >= t[-1] - last_s
-    good = np.array([s in TRUSTED_STATES for s in states])
-    defended = np.array([s in ("recovered", "rectified") for s in states])
-    out = {"fixes": len(rows), "first_fix_s": round(float(t[0]), 1),
+    good = np.isin(states, TRUSTED_STATES)
+    defended = np.isin(states, ("recovered", "rectified"))
+    out = {"fixes": int(t.size), "first_fix_s": round(float(t[0]), 1),
            "last_mean_m": round(float(np.mean(err[last])), 2), "max_m": round(float(np.max(err)), 1),
-           "last_state": states[-1], "recovered": int(sum(s == "recovered" for s in states)),
-           "rectified": int(sum(s == "rectified" for s in states)),
+           "last_state": str(states[-1]), "recovered": int(np.sum(states == "recovered")),
+           "rectified": int(np.sum(states == "rectified")),
            "called_good_but_wrong": int(np.sum(good & (err > bad_m)))}
     if defended.any():
         out |= {"recovered_from_s": round(float(t[defended][0]), 1),
@@ -236,14 +377,18 @@ def score(fixes_csv: Path, place: Place, last_s: float = 10.0, bad_m: float = 10
 
 
 def prepare(case: Case, nav_path: str | Path, work: Path) -> Path:
-    """The mixed recording of a case (scenes cached in work/scenes)."""
+    """The mixed recording of a case (scenes cached in work/scenes, named by what renders them: place or motion,
+    start time, path loss, rate and length)."""
     scenes = work / "scenes"
     scenes.mkdir(parents=True, exist_ok=True)
     stem = f"{case.date.replace('/', '').replace(',', 'T').replace(':', '')}-{case.fs_hz / 1e6:g}M-{case.duration_s:g}s"
+    stem += "-pl" if case.path_loss else ""
     trip = f"-{Path(case.motion).stem}" if case.motion else ""
     legit = render(nav_path, scenes / f"{case.place.name}{trip}-{stem}.bin", case.place, case, case.motion)
     spoof = None
-    if case.attacker and case.spoof_motion:
+    if case.attacker and case.push_ns_per_s:
+        pass                          # the legitimate scene itself, delayed in the mixer
+    elif case.attacker and case.spoof_motion:
         spoof = render(nav_path, scenes / f"{case.place.name}-{Path(case.spoof_motion).stem}-{stem}.bin", case.place,
                        case, case.spoof_motion)
     elif case.attacker:
@@ -253,24 +398,55 @@ def prepare(case: Case, nav_path: str | Path, work: Path) -> Path:
     return mix(legit, spoof, work / f"{case.tag}.bin", case)
 
 
+class _FirstFix(Exception):
+    """Raised between two chunks once a run that only wants its first fix has it."""
+
+
 def run_case(case: Case, nav_path: str | Path, work: Path, defense: str = "full", assisted: bool = True,
-             imu_csv: str | Path | None = None, sets: tuple[str, ...] = ()) -> dict:
+             imu_csv: str | Path | None = None, sets: tuple[str, ...] = (), until_first_fix: bool = False) -> dict:
     """Prepare a case, run `semperfi run` on it in-process (with --imu TRACK.csv when given, and --set for each of
-    sets), and score it."""
+    sets), and score it. A receiver that raises does not stop the caller: its one-line error is the result's
+    "crash" (None when it ran through), scored on what it wrote. until_first_fix stops the run at its first fix
+    (a clean run for the time to first fix). The result also says where the outputs are ("out") and the
+    receiver's wall time."""
     import functools
 
     from ..cli import _receiver_config
     from ..defense.defended import DefendedReceiver
     from ..defense.imu_track import read_imu_csv
-    from ..receiver.run import run_file
+    from ..receiver.run import NoSignal, run_file
     data = prepare(case, nav_path, work)
     variant = "".join("-" + s.replace('"', "").replace("=", "-") for s in sets)
     out = work / f"{case.tag}-{defense}{'' if assisted else '-unassisted'}{'-imu' if imu_csv else ''}{variant}"
     receiver = functools.partial(DefendedReceiver, imu_track=read_imu_csv(imu_csv) if imu_csv else None)
-    run_file(data, None, None, None, _receiver_config(None, [f'defense.mode="{defense}"', *RECEIVER_SETTINGS, *sets]), out,
-             str(nav_path) if assisted else None, receiver_factory=receiver)
-    return {"case": case.tag, "defense": defense, "assisted": assisted,
-            **score(out / "fixes.csv", case.place, motion=case.motion)}
+
+    def stop_at_first_fix(rx):
+        feed = rx.feed
+
+        def fed(chunk):
+            feed(chunk)
+            if rx.last_fix is not None:
+                raise _FirstFix
+        rx.feed = fed
+    cfg = _receiver_config(None, [f'defense.mode="{defense}"', *RECEIVER_SETTINGS, *sets])
+    crash = None
+    t0 = time.perf_counter()
+    try:
+        run_file(data, None, None, None, cfg, out, str(nav_path) if assisted else None, receiver_factory=receiver,
+                 receiver_hook=stop_at_first_fix if until_first_fix else None)
+    except (_FirstFix, NoSignal):     # NoSignal: no fix at all, which the score says
+        pass
+    except Exception as exc:          # noqa: BLE001 -- a receiver's crash is a result, recorded
+        crash = one_line(exc)
+    wall_s = round(time.perf_counter() - t0, 1)
+    return {"case": case.tag, "defense": defense, "assisted": assisted, "crash": crash, "wall_s": wall_s,
+            "out": str(out), **score(out / "fixes.csv", case.place, motion=case.motion)}
+
+
+def one_line(exc: BaseException) -> str:
+    """An exception as one line: its type and its message's first line."""
+    text = str(exc).strip()
+    return f"{type(exc).__name__}: {text.splitlines()[0]}" if text else type(exc).__name__
 
 
 def plugin_case(case: Case, nav_path: str | Path, work: Path, timeout_s: float = 1800.0) -> dict:
