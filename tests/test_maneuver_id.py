@@ -56,9 +56,11 @@ def test_a_weaker_attacker_is_identified_by_the_maneuver_and_the_true_trajectory
             enu = rot @ (np.array([float(f[c]) for c in ("x_m", "y_m", "z_m")]) - truth[k, 1:])
             errors.setdefault(f["state"], []).append(float(np.hypot(enu[0], enu[1])))
     print({s: (len(e), round(float(np.mean(e)), 2), round(float(np.max(e)), 2)) for s, e in errors.items()})
-    assert len(errors.get("recovered", [])) >= 20, errors.keys()
-    assert np.mean(errors["recovered"]) < 5.0
-    assert max(errors.get("recovered", []) + errors.get("nominal", [])) < 10.0
+    # recovered, or rectified: a retrieved signal timed by its spoofer's message until it reads its own
+    defended = errors.get("recovered", []) + errors.get("rectified", [])
+    assert len(defended) >= 20, errors.keys()
+    assert np.mean(defended) < 5.0
+    assert max(defended + errors.get("nominal", [])) < 10.0
 
 
 def test_run_refuses_a_malformed_imu_track_in_one_line(tmp_path):

@@ -78,7 +78,7 @@ def test_demo_shows_the_live_table_of_both_receivers(tmp_path):
     it each draw their table: a person watching the demo sees it run, not a silent minute."""
     code, screen = run_in_pty(["demo", "--out", str(tmp_path / "demo"), "--duration", "3"], tmp_path)
     assert code == 0, screen[-2000:]
-    marker = "fixes labelled nominal or recovered"   # printed between the closed loop and the conventional run
+    marker = "fixes labelled good"   # printed between the closed loop and the conventional run
     assert marker in screen, screen[-3000:]
     closed_loop, conventional = screen.split(marker, 1)
     assert TABLE_HEADER in closed_loop, f"no live table for the closed loop's receiver:\n{screen[-3000:]}"

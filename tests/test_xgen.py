@@ -269,3 +269,26 @@ def test_the_time_push_is_the_legitimate_scene_itself_delayed_in_code_and_carrie
         assert abs(delay_s - expected) < 1e-9, (t, delay_s * 1e9, expected * 1e9)
         assert abs(np.angle(r[k])) < 0.05, (t, np.angle(r[k]))
         assert abs(np.abs(r[k]) * up / np.vdot(x, x).real - 1) < 0.1, t       # as strong as the scene
+
+
+def test_a_flying_receiver_is_answered_within_two_seconds_of_the_verdict_and_never_falls_silent(tmp_path, brdc_path):
+    """GPS-SDR-SIM with its own path loss (satellites 38-48 dB-Hz), a UAV hovering, then flying a 48 m maneuver from
+    14 s, under a static spoofer 1 km east at +6 dB from the first sample; the INS track is given. The verdict used to
+    be followed by tens of seconds without a fix (every legitimate signal acquired anew, its time and ephemeris read
+    anew); standby channels have followed the other peaks since the alarm, and the verdict promotes them."""
+    from pathlib import Path
+
+    from semperfi.eval.grid import PATH_LOSS_CN0_DBHZ
+    from semperfi.eval.metrics import run_metrics
+    from semperfi.eval.xgen import maneuver_case, recording_s
+    case, ins = maneuver_case(PLACES["boston"], 1000.0, 6.0, tmp_path, maneuver_at_s=14.0, duration_s=44.0,
+                              path_loss=True, cn0_dbhz=PATH_LOSS_CN0_DBHZ)
+    r = run_case(case, brdc_path, tmp_path, imu_csv=ins)
+    out = Path(r["out"])
+    m = run_metrics(out / "fixes.csv", out / "events.jsonl", case.truth, recording_s(case))
+    print(m)
+    assert not m["crash"] and m["verdict_s"] is not None, m
+    assert m["verdict_to_recovered_s"] is not None and m["verdict_to_recovered_s"] <= 2.0, m
+    assert m["availability_after_verdict"] >= 0.95 and m["longest_gap_after_verdict_s"] <= 3.0, m
+    assert m["good_but_wrong"] == 0 and m["good_beyond_hpl"] == 0 and m["good_beyond_vpl"] == 0, m
+    assert m["last_mean_m"] < 3.0, m

@@ -23,13 +23,12 @@ from .rectifier import Rectifier
 
 
 MAX_RECOVERED_RESIDUAL_M = 30.0
-# A legitimate signal within JOINT_WITHIN_CHIPS of a stronger spoofer keeps, after cancellation, the spoofer's residual
-# (some 25 dB down) beside it, and the closer the twin the worse the spoofer's own estimate: a multipath at under a
-# chip. Measured on GPS-SDR-SIM at +15 dB, 500 m: twins 0.4-0.5 chip away biased 2-8 m, those 0.85-1.2 chip away under
-# 1.5 m; on our own 2 MSa/s closed loop (a narrower band, a rounder peak) a twin 0.89 chip from a +6 dB spoofer 3-6 m.
-# Any such twin is left out while enough others remain
-BIASED_TWIN_DB = 0.0
-BIASED_WITHIN_CHIPS = JOINT_WITHIN_CHIPS
+# A legitimate signal within BIASED_WITHIN_CHIPS of a spoofer BIASED_TWIN_DB stronger keeps, after cancellation, the
+# spoofer's residual (some 25 dB down) within 15 dB of itself, and the closer the twin the worse the spoofer's own
+# estimate: a multipath at under a chip. Measured on GPS-SDR-SIM at +15 dB, 500 m: twins 0.4-0.5 chip away biased
+# 2-8 m, those 0.85-1.2 chip away under 1.5 m
+BIASED_TWIN_DB = 10.0
+BIASED_WITHIN_CHIPS = 0.6
 TWIN_SPACING_CHIPS = 0.1   # the early-late spacing of a legitimate channel with a spoofer within a chip
 TWIN_MEASURE_REACH_CHIPS = JOINT_WITHIN_CHIPS + 0.5   # a twin measured this far off has left the two-path tracker
 BEAT_CHECK_S = 0.25

@@ -59,6 +59,12 @@ class SpoofGuard:
         self.verified: set[int] = set()                  # PRNs whose legitimate peak dominates after cancellation
         self.pending_verify: dict[int, tuple[float, object, int]] = {}  # PRN -> (when, adversarial peak, stage)
         self.gave_up: dict[int, str] = {}
+        # PRNs cancelled on power alone (no legitimate peak in sight), and those of them whose cancellation took
+        # everything away: the attacker's signal holds the legitimate one within it (aligned in code and carrier),
+        # so it is left to the receiver, which tracks the two merged (fixes on it stay spoofing_detected) and sees
+        # them part (beat, two-path) when the attacker moves
+        self._blind: set[int] = set()
+        self.merged: set[int] = set()
         # PRNs whose attacker's peak was chosen by an assumption (the stronger one, the later one, a user's list), not
         # known: the attacker controls its power and delay, so what is cancelled may be the legitimate signal
         self.guessed: set[int] = set()
@@ -350,6 +356,8 @@ class SpoofGuard:
         self.cancel_started.setdefault(prn, t_s)
         if choice.guessed:
             self.guessed.add(prn)
+        if choice.legitimate is None and not choice.guessed and stage == 0:
+            self._blind.add(prn)
         self.pending_verify[prn] = (t_s + self.d["verify_after_s"], peak, stage)
         self._emit("cancellation_start", t_s, prn=prn, stage=stage, guessed=choice.guessed, reason=choice.reason,
                    adversarial_code_phase_chips=round(peak.code_phase_chips, 4),
@@ -373,6 +381,9 @@ class SpoofGuard:
             cafs = dict(self._last_cafs)
             cafs.update(self._acquire(self._clean, [prn], peak.doppler_hz, 2000.0))
             caf, target, reason = cafs[prn], None, ""
+            if caf.best is None and stage == 0 and prn in self._blind:
+                self._left_merged(prn, t_s)
+                continue
             if caf.best is not None and self._still_dominates(prn, caf.best.code_phase_chips, first):
                 target, reason = caf.best, "the cancelled peak still dominates"
             elif caf.best is not None and self._at_twin(prn, caf.best.code_phase_chips, first):
@@ -397,6 +408,16 @@ class SpoofGuard:
                 self._emit("cancellation_refused", t_s, prn=prn, reason=self.gave_up[prn])
             else:
                 self.pending_verify[prn] = (t_s + self.d["verify_after_s"], target, stage + 1)
+
+    def _left_merged(self, prn: int, t_s: float) -> None:
+        """A cancellation on power alone left no signal at all: the legitimate one went with the attacker's, aligned
+        within it. Cancelling it would leave the receiver without the satellite; the PRN stays alarmed, uncancelled."""
+        self.canceller.drop(prn)
+        del self.cancel_started[prn]
+        self._blind.discard(prn)
+        self.merged.add(prn)
+        self._emit("cancellation_dropped", t_s, prn=prn, reason="nothing left after cancellation: the attacker's "
+                   "signal carries the legitimate one, aligned")
 
     def identified_by_continuity(self, prn: int, cancelled_is_attacker: bool, t_s: float) -> None:
         """The continuity test decided a guessed PRN: the cancelled peak was the attacker's (no longer a guess), or
@@ -486,5 +507,5 @@ class SpoofGuard:
         self._emit("defense_summary", t_s, alarms=sorted(self.alarmed_prns), cancelled=sorted(self.cancel_started),
                    verified=sorted(self.verified), gave_up=self.gave_up, attenuation_db=self.canceller.report(),
                    resolved=sorted(p for p in self._present | self.extra_prns if self.resolved(p)),
-                   guessed=sorted(self.guessed),
+                   guessed=sorted(self.guessed), merged=sorted(self.merged),
                    suspect_close=sorted(self.detector.close))

@@ -128,7 +128,9 @@ class Case:
 
 
 def gps_sdr_sim_path() -> str | None:
-    return shutil.which(GPS_SDR_SIM)
+    """gps-sdr-sim on PATH, else the one built for this machine in the shared folder beside a checkout."""
+    beside = Path(__file__).resolve().parents[3] / "shared" / "bin" / GPS_SDR_SIM
+    return shutil.which(GPS_SDR_SIM) or (str(beside) if beside.is_file() else None)
 
 
 def ephemeris_day(nav_path: str | Path) -> str:
