@@ -95,7 +95,8 @@ def run_demo(out_dir: str | Path, duration_s: float, sets: list[str], progress: 
                f"guessing which peak is the attacker's")
     asked, drawn, done = (loop.first(k, "flight") for k in ("alarm", "maneuver_drawn", "maneuver_done"))
     if asked and drawn and done:
-        yield (f"flight side: asked at t = {asked['payload']['t_s']:.1f} s (on the alarm, once the receiver had a fix); maneuver of "
+        yield (f"flight side: asked at t = {asked['payload']['t_s']:.1f} s (on the alarm, once the receiver had a "
+               f"fix); maneuver of "
                f"{drawn['legs']} legs drawn from the OS's cryptographic source, flown over MAVLink in GUIDED from "
                f"t = {done['start_s']:.1f} to {done['end_s']:.1f} s: {drawn['duration_s']:.1f} s, {drawn['path_m']:.1f} m "
                f"flown, ending {drawn['end_distance_m']:.1f} m from its start (paper: 10-20 s, under 50 m)")
