@@ -400,10 +400,6 @@ def prepare(case: Case, nav_path: str | Path, work: Path) -> Path:
     return mix(legit, spoof, work / f"{case.tag}.bin", case)
 
 
-class _FirstFix(Exception):
-    """Raised between two chunks once a run that only wants its first fix has it."""
-
-
 def run_case(case: Case, nav_path: str | Path, work: Path, defense: str = "full", assisted: bool = True,
              imu_csv: str | Path | None = None, sets: tuple[str, ...] = (), until_first_fix: bool = False) -> dict:
     """Prepare a case, run `semperfi run` on it in-process (with --imu TRACK.csv when given, and --set for each of
@@ -421,22 +417,15 @@ def run_case(case: Case, nav_path: str | Path, work: Path, defense: str = "full"
     variant = "".join("-" + s.replace('"', "").replace("=", "-") for s in sets)
     out = work / f"{case.tag}-{defense}{'' if assisted else '-unassisted'}{'-imu' if imu_csv else ''}{variant}"
     receiver = functools.partial(DefendedReceiver, imu_track=read_imu_csv(imu_csv) if imu_csv else None)
-
-    def stop_at_first_fix(rx):
-        feed = rx.feed
-
-        def fed(chunk):
-            feed(chunk)
-            if rx.last_fix is not None:
-                raise _FirstFix
-        rx.feed = fed
     cfg = _receiver_config(None, [f'defense.mode="{defense}"', *RECEIVER_SETTINGS, *sets])
     crash = None
     t0 = time.perf_counter()
     try:
-        run_file(data, None, None, None, cfg, out, str(nav_path) if assisted else None, receiver_factory=receiver,
-                 receiver_hook=stop_at_first_fix if until_first_fix else None)
-    except (_FirstFix, NoSignal):     # NoSignal: no fix at all, which the score says
+        summary = run_file(data, None, None, None, cfg, out, str(nav_path) if assisted else None,
+                           receiver_factory=receiver,
+                           stop=(lambda rx: rx.last_fix is not None) if until_first_fix else None)
+        crash = summary.internal_error
+    except NoSignal:                  # no fix at all, which the score says
         pass
     except Exception as exc:          # noqa: BLE001 -- a receiver's crash is a result, recorded
         crash = one_line(exc)

@@ -49,11 +49,12 @@ def _live_table(receiver: Receiver, t_s: float, total_s: float | None = None):
 def run_file(path: str | Path, fmt: str | None, fs_hz: float | None, if_hz: float | None, cfg: dict,
              out_dir: str | Path, nav_path: str | None = None, live: bool = False, receiver_hook=None,
              receiver_factory=Receiver, skip_s: float = 0.0, duration_s: float | None = None,
-             fs_out_hz: float | None = None) -> RunSummary:
+             fs_out_hz: float | None = None, stop=None) -> RunSummary:
     """Run a receiver over a file, `-` (standard input) or rtl_tcp://HOST:PORT; ValueError (one line) for bad input,
     NoSignal when nothing acquires. skip_s, duration_s cut a window; fs_out_hz decimates to a processing rate.
 
-    receiver_factory builds the receiver (the conventional chain by default; the defended one wraps it)."""
+    receiver_factory builds the receiver (the conventional chain by default; the defended one wraps it);
+    stop(receiver) -> bool, asked after each chunk, ends the run early (a harness that wants only the first fix)."""
     source = open_source(path, fmt, fs_hz, if_hz, skip_s=skip_s, duration_s=duration_s, fs_out_hz=fs_out_hz)
     assisted = AssistedNav.from_rinex(nav_path) if nav_path else None
     out_dir = Path(out_dir)
@@ -82,6 +83,8 @@ def run_file(path: str | Path, fmt: str | None, fs_hz: float | None, if_hz: floa
             for chunk in source.chunks(chunk_seconds(source.fs_hz)):
                 receiver.feed(chunk)
                 _report_notices(source, out)
+                if stop is not None and stop(receiver):
+                    break
                 now = time.perf_counter()
                 if live_ctx is not None and now - last_draw > 0.25:
                     live_ctx.update(_live_table(receiver, receiver.stats.samples / source.fs_hz, total_s))
