@@ -292,3 +292,6 @@ def test_a_flying_receiver_is_answered_within_two_seconds_of_the_verdict_and_nev
     assert m["availability_after_verdict"] >= 0.95 and m["longest_gap_after_verdict_s"] <= 3.0, m
     assert m["good_but_wrong"] == 0 and m["good_beyond_hpl"] == 0 and m["good_beyond_vpl"] == 0, m
     assert m["last_mean_m"] < 3.0, m
+    events = [json.loads(line) for line in open(out / "events.jsonl")]
+    ready = [e for e in events if e["event"] == "channel_promoted" and e["tow"]]
+    assert len(ready) >= 3, "standby channels promoted at the verdict with their own time already read"
