@@ -3,7 +3,8 @@ import struct
 
 import pytest
 
-from semperfi.flight.link import MAX_FRAME_BYTES, Codec, LinkError, alarm_lines_of_sight, receive, send
+from semperfi.flight.link import (MAX_FRAME_BYTES, Codec, LinkError, alarm_lines_of_sight, alarm_required_spread_m,
+                                  receive, send)
 
 KEY = b"0123456789abcdef0123456789abcdef"
 
@@ -106,3 +107,10 @@ def test_hostile_lines_of_sight_are_rejected(lines_of_sight):
     _, payload = rx.decode(tx.encode("alarm", {"reason": "x", "lines_of_sight": lines_of_sight})[4:])
     with pytest.raises(LinkError, match="lines_of_sight"):
         alarm_lines_of_sight(payload)
+
+
+@pytest.mark.parametrize("value", [float("nan"), float("inf"), -1.0, 1e9, True, "4.4", [4.4]])
+def test_a_malformed_required_spread_is_rejected(value):
+    with pytest.raises(LinkError):
+        alarm_required_spread_m({"required_spread_m": value})
+    assert alarm_required_spread_m({}) == 0.0 and alarm_required_spread_m({"required_spread_m": 4.4}) == 4.4

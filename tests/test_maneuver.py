@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from semperfi.defense.identifier import MIN_SIGNATURE_M, ImuTrack, LineOfSight, PeakHistory, identify_peaks
-from semperfi.flight.maneuver import REQUIRED_SPREAD_M, ManeuverLimits, check, draw, spread_m, unit_ned
+from semperfi.defense.identifier import REQUIRED_SPREAD_M
+from semperfi.flight.maneuver import ManeuverLimits, check, draw, spread_m, unit_ned
 
 # the closed loop's sky (Boston, 2022-01-01 00:00:27): azimuth, elevation of its 8 PRNs
 SKY = [(154.4, 48.3), (206.4, 60.0), (53.2, 42.8), (310.6, 13.1), (299.3, 36.0), (242.9, 20.8), (99.7, 58.9),
@@ -83,7 +84,7 @@ def test_a_draw_that_moves_little_along_a_line_of_sight_is_rejected():
     weak = u[int(np.argmin(spread_m(free, u)))]
     assert spread_m(free, [weak])[0] < REQUIRED_SPREAD_M
     # the same random source, told the line of sight: that draw is refused and the one flown moves along it
-    told = draw(lines_of_sight=[weak], rng=random.Random(3))
+    told = draw(lines_of_sight=[weak], required_spread_m=REQUIRED_SPREAD_M, rng=random.Random(3))
     assert spread_m(told, [weak])[0] >= REQUIRED_SPREAD_M
     assert check(told, ManeuverLimits()) == []
 
@@ -93,7 +94,8 @@ def test_accepted_draws_move_enough_along_every_line_of_sight():
     for seed in range(60):
         turn_deg, heading = seed * 37.0, seed * 0.7   # the closed loop's sky, turned round: 60 geometries
         u = [unit_ned((az + turn_deg) % 360.0, el) for az, el in SKY]
-        m = draw(limits, track_heading_rad=heading, lines_of_sight=u, rng=random.Random(seed))
+        m = draw(limits, track_heading_rad=heading, lines_of_sight=u, required_spread_m=REQUIRED_SPREAD_M,
+                 rng=random.Random(seed))
         assert spread_m(m, u).min() >= REQUIRED_SPREAD_M, seed
         assert check(m, limits, heading) == []
         assert np.max(np.abs(np.diff(m.down_m))) / limits.dt_s <= limits.max_vertical_speed_mps + 1e-9
@@ -103,7 +105,8 @@ def test_without_an_acceptable_draw_the_best_is_flown():
     """A vehicle that may barely climb cannot move 4.4 m along the zenith: the best draw of the search is flown."""
     limits = ManeuverLimits(max_vertical_speed_mps=0.1)
     u = [unit_ned(0.0, 90.0), unit_ned(30.0, 20.0)]
-    few = draw(limits, lines_of_sight=u, rng=random.Random(5), max_tries=5)
-    more = draw(limits, lines_of_sight=u, rng=random.Random(5), max_tries=200)
+    few = draw(limits, lines_of_sight=u, required_spread_m=REQUIRED_SPREAD_M, rng=random.Random(5), max_tries=5)
+    more = draw(limits, lines_of_sight=u, required_spread_m=REQUIRED_SPREAD_M, rng=random.Random(5),
+                max_tries=200)
     assert check(few, limits) == [] and check(more, limits) == []
     assert spread_m(few, u).min() <= spread_m(more, u).min() < REQUIRED_SPREAD_M

@@ -34,6 +34,11 @@ PAPER_THRESHOLD_M = 5.0
 MIN_SIGNATURE_M = 3.0
 # the INS drift over a maneuver of up to 20 s at the paper's IMU level (0.44 m/s after 20 s: about 0.011 m/s^2 t^2/2)
 INS_DRIFT_M = 2.0
+# what a maneuver must move the vehicle along a line of sight for a legitimate peak there to be cleared: the INS
+# track is the flown one plus a drift growing from zero to at most INS_DRIFT_M, and the rms about the mean is a
+# seminorm (such a drift's is at most half its range); the vehicle flies the plan late and through gusts, its spread
+# 0.9 of the plan's or more (95% of simulated flights). Sent with an alarm, for the flight side's draw
+REQUIRED_SPREAD_M = (MIN_SIGNATURE_M + INS_DRIFT_M / 2) / 0.9
 MAX_POSITION_ERROR_M = 30e3   # beyond this the lines of sight themselves are wrong, not just the prediction
 
 

@@ -19,7 +19,7 @@ from ..gps.ephemeris import satellite_position
 from ..gps.geometry import enu_rotation
 from ..receiver.acquisition import Peak
 from ..receiver.tracking import NEXT_SAMPLE, Channel, LoopConfig, initial_state
-from .identifier import INS_DRIFT_M, ImuTrack, LineOfSight, PeakHistory, PeakVerdict, identify_peaks
+from .identifier import INS_DRIFT_M, REQUIRED_SPREAD_M, ImuTrack, LineOfSight, PeakHistory, PeakVerdict, identify_peaks
 from .imu_track import find_maneuver
 
 SEPARATE_CHIPS = 1.5          # closer peaks share a tracking loop's discriminator
@@ -217,7 +217,7 @@ class LinkedManeuver(ManeuverIdentifier):
         if self.wanted is not None and self.requested_s is None and self.failed is None and self.ready():
             self.requested_s = t_s
             self.channel.send("alarm", {"reason": f"auxiliary peak on PRN {self.wanted[1]}", "t_s": t_s,
-                                        "lines_of_sight": self.sky()})
+                                        "lines_of_sight": self.sky(), "required_spread_m": REQUIRED_SPREAD_M})
         for kind, payload in self.channel.poll():
             if kind == "maneuver_request" and self.requested_s is not None and self.accepted_s is None:
                 self.accepted_s, self.maneuver_id = t_s, str(payload.get("maneuver_id", ""))[:64]

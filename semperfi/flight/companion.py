@@ -15,8 +15,8 @@ import socket
 
 import numpy as np
 
-from .link import LinkError, LinkPeer, alarm_lines_of_sight
-from .maneuver import REQUIRED_SPREAD_M, ManeuverLimits, draw, spread_m, unit_ned
+from .link import LinkError, LinkPeer, alarm_lines_of_sight, alarm_required_spread_m
+from .maneuver import ManeuverLimits, draw, spread_m, unit_ned
 from .mavlink_pilot import Pilot, PilotError
 
 VERDICT_WAIT_S = 120.0
@@ -49,18 +49,18 @@ def serve(port: int, key: bytes, vehicle_url: str, report, host: str = "127.0.0.
                 continue
             report({"event": "alarm", "payload": msg[1]})
             try:
-                sky = alarm_lines_of_sight(msg[1])
+                sky, required_m = alarm_lines_of_sight(msg[1]), alarm_required_spread_m(msg[1])
             except LinkError as exc:
                 report({"event": "alarm_rejected", "error": str(exc)})
                 continue
             lines_of_sight = [unit_ned(az, el) for _, az, el in sky]
-            maneuver = draw(ManeuverLimits(), lines_of_sight=lines_of_sight, rng=rng)
+            maneuver = draw(ManeuverLimits(), lines_of_sight=lines_of_sight, required_spread_m=required_m, rng=rng)
             maneuver_id = secrets.token_hex(8)
             peer.send("maneuver_request", {"maneuver_id": maneuver_id})
             report({"event": "maneuver_drawn", "maneuver_id": maneuver_id, "legs": len(maneuver.legs),
                     "duration_s": round(maneuver.duration_s, 2), "path_m": round(maneuver.path_length_m, 1),
                     "end_distance_m": round(maneuver.end_distance_m, 1),
-                    **_spreads(maneuver, [prn for prn, _, _ in sky], lines_of_sight)})
+                    **_spreads(maneuver, [prn for prn, _, _ in sky], lines_of_sight, required_m)})
             pilot = Pilot(vehicle_url, timeout_s=10.0)
             try:
                 result = pilot.fly(maneuver)
@@ -83,12 +83,12 @@ def serve(port: int, key: bytes, vehicle_url: str, report, host: str = "127.0.0.
         peer.close()
 
 
-def _spreads(maneuver, prns, lines_of_sight) -> dict:
+def _spreads(maneuver, prns, lines_of_sight, required_m: float) -> dict:
     """How far the maneuver moves along each PRN's line of sight, and whether that is enough for every one (a draw
     that is not was the best of a bounded search)."""
     spread = spread_m(maneuver, lines_of_sight)
     return {"spread_m": {str(prn): round(float(x), 2) for prn, x in zip(prns, spread)},
-            "decidable": bool(np.all(spread >= REQUIRED_SPREAD_M))}
+            "decidable": bool(np.all(spread >= required_m))}
 
 
 def _await(peer: LinkPeer, kind: str, timeout_s: float):

@@ -37,6 +37,7 @@ MAX_FRAME_BYTES = 1 << 20
 MAX_SKEW_S = 5.0
 TYPES = {"alarm", "maneuver_request", "maneuver_done", "verdict"}
 MAX_LINES_OF_SIGHT = 32
+MAX_REQUIRED_SPREAD_M = 50.0   # a maneuver under 50 m flown cannot spread further along a line of sight
 _MAC = 32
 log = logging.getLogger(__name__)
 
@@ -119,6 +120,15 @@ def alarm_lines_of_sight(payload: dict) -> list[tuple[int, float, float]]:
     if len({prn for prn, _, _ in out}) < len(out):
         raise LinkError("lines_of_sight: a PRN appears twice")
     return out
+
+
+def alarm_required_spread_m(payload: dict) -> float:
+    """How far the receiver needs the maneuver to move along each line of sight (0 from an older peer: no
+    requirement); LinkError if malformed."""
+    x = payload.get("required_spread_m", 0.0)
+    if not (_number(x) and 0.0 <= x <= MAX_REQUIRED_SPREAD_M):
+        raise LinkError(f"required_spread_m must lie in [0, {MAX_REQUIRED_SPREAD_M:g}]")
+    return float(x)
 
 
 def _number(x) -> bool:

@@ -9,8 +9,9 @@ and leaves the 20 m wide no-maneuver corridor (10 m each side) around the curren
 radius and altitude band are configurable; draws violating any constraint are rejected and redrawn.
 
 Given the lines of sight of the satellites the receiver asks about, a draw is also rejected unless it moves the
-vehicle far enough along every one of them for the identifier to decide its peaks (REQUIRED_SPREAD_M); after max_tries
-shapes without one, the draw whose weakest line of sight moved most is flown.
+vehicle far enough along every one of them for the identifier to decide its peaks (required_spread_m, which the
+receiver sends with its alarm); after max_tries shapes without one, the draw whose weakest line of sight moved most
+is flown.
 """
 from __future__ import annotations
 
@@ -20,15 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..defense.identifier import INS_DRIFT_M, MIN_SIGNATURE_M
-
 _SYS = secrets.SystemRandom()
-# The identifier clears a legitimate peak only if the INS displacement along its line of sight spreads at least
-# MIN_SIGNATURE_M (rms about its mean over the maneuver window). The INS track is the flown one plus a drift growing
-# from zero to at most INS_DRIFT_M: the rms about the mean is a seminorm, and such a drift's is at most half its
-# range. The vehicle flies the plan late and through gusts: its spread is 0.9 of the plan's or more (95% of simulated
-# flights). Simulated flights with the paper's worst IMU leave under 1% of lines of sight at this bound undecided.
-REQUIRED_SPREAD_M = (MIN_SIGNATURE_M + INS_DRIFT_M / 2) / 0.9
 TURNS = 36   # headings each drawn shape is tried at (and flipped up/down): the draw is alike at every heading
 _HEADING_DEPENDENT = {"corridor", "altitude"}   # the only constraints turning or flipping a shape can change
 
@@ -214,11 +207,13 @@ def _shape(rng, limits: ManeuverLimits) -> Maneuver | None:
 
 
 def draw(limits: ManeuverLimits = ManeuverLimits(), track_heading_rad: float = 0.0,
-         altitude_m: float = 50.0, max_tries: int = 1000, lines_of_sight=(), rng=None) -> Maneuver:
+         altitude_m: float = 50.0, max_tries: int = 1000, lines_of_sight=(), required_spread_m: float = 0.0,
+         rng=None) -> Maneuver:
     """Draw an admissible maneuver from the OS cryptographic source (rng: a random.Random for tests only).
 
     lines_of_sight: unit vectors (NED) to the satellites the receiver asks about; the maneuver must spread at least
-    REQUIRED_SPREAD_M along each (spread_m), else after max_tries shapes the best one drawn is returned."""
+    required_spread_m (the receiver's identifier says how much) along each (spread_m), else after max_tries shapes
+    the best one drawn is returned."""
     rng = _SYS if rng is None else rng
     if not limits.min_altitude_m <= altitude_m <= limits.max_altitude_m:
         raise ValueError("vehicle outside the altitude band: no vertical room to maneuver")
@@ -232,12 +227,12 @@ def draw(limits: ManeuverLimits = ManeuverLimits(), track_heading_rad: float = 0
         headings = rng.uniform(0.0, 2 * math.pi) + np.arange(TURNS) * (2 * math.pi / TURNS)
         weakest = _weakest_spreads_m(shape, u, headings)
         for k in sorted(range(len(weakest)), key=lambda _: rng.random()):
-            if weakest[k] < REQUIRED_SPREAD_M and weakest[k] <= best:
+            if weakest[k] < required_spread_m and weakest[k] <= best:
                 continue
             m = _turned(shape, float(headings[k % TURNS]), 1 if k < TURNS else -1)
             if check(m, limits, track_heading_rad, altitude_m):
                 continue
-            if weakest[k] >= REQUIRED_SPREAD_M:
+            if weakest[k] >= required_spread_m:
                 return m
             best, best_m = weakest[k], m
     if best_m is None:
