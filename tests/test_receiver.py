@@ -186,3 +186,24 @@ def test_wrong_sample_rate_says_what_to_check(static_run, tmp_path):
         run_file(bare, "ishort", 2.5e6, 0.0, load_receiver_config(), tmp_path / "out")
     with pytest.raises(NoSignal, match="--format"):
         run_file(bare, "ibyte", 2e6, 0.0, load_receiver_config(), tmp_path / "out2")
+
+
+def test_a_loss_of_lock_costs_no_subframe_the_next_channel_takes_the_time_on(tmp_path, brdc_path):
+    """A second of nothing at 18 s: every channel loses lock. The channels acquired after it take the time the lost
+    ones had read (receiver/carried_time), so the fixes come back with the loops (some 1.5 s after the signals), not
+    with the next HOW (6 s or more), and as accurate as before."""
+    simulate(tmp_path / "a.bin", f'constellation.rinex="{brdc_path}"', 'time.start="2022-01-01T00:00:27"',
+             duration=30.0)
+    x = np.fromfile(tmp_path / "a.bin", dtype=np.int16)     # the simulator's ci16_le
+    x[int(18.0 * FS) * 2:int(19.0 * FS) * 2] = 0
+    x.tofile(tmp_path / "a.bin")
+    receive(tmp_path / "a.bin", tmp_path / "out", str(brdc_path))
+    events = [json.loads(line) for line in open(tmp_path / "out" / "events.jsonl")]
+    assert len({e["prn"] for e in events if e["event"] == "loss_of_lock" and 18.0 < e["t_rx_s"] < 19.5}) >= 4
+    inherited = [e for e in events if e["event"] == "time_inherited"]
+    assert len(inherited) >= 4 and all(0.5 < e["gap_s"] < 5.0 for e in inherited), inherited
+    fixes = read_fixes(tmp_path / "out")
+    t = np.array([float(f["t_rx_s"]) for f in fixes])
+    assert t[t < 18.0].size and t[t > 19.0].size and t[t > 19.0][0] < 21.5, t[t > 17.0][:3]
+    err = enu_errors([f for f in fixes if float(f["t_rx_s"]) > 19.0])
+    assert np.max(np.hypot(err[:, 0], err[:, 1])) < 10.0

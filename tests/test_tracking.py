@@ -122,3 +122,29 @@ def test_channel_declares_loss_of_lock_in_noise():
     x = (rng.standard_normal(int(3 * FS)) + 1j * rng.standard_normal(int(3 * FS))).astype(np.complex64)
     ch.process(x, 0)
     assert not ch.locked
+
+
+def test_a_carrier_frequency_step_is_followed_not_lost():
+    """A time push switched on at once (TEXBAT's 25 ns/s: the carrier steps by 39 Hz) on a spoofer at 59 dB-Hz with
+    its legitimate twin 10 dB under it: a Costas PLL of 18 Hz alone slips out of phase lock (peak phase error about
+    half a cycle) and loses the channel; with the FLL back on after a poor lock window it follows the step."""
+    fs, prn, dop, step_hz, t_step = 2.6e6, 7, 1200.0, -39.0, 1.5
+    rng = np.random.default_rng(3)
+    t = np.arange(int(fs * 4.0)) / fs
+    after = np.clip(t - t_step, 0.0, None)
+    rate = CA_CHIP_RATE_HZ * (1 + dop / L1_HZ)
+    code = ca_code(prn)
+    spoofer = code[np.floor((t + after * step_hz / L1_HZ) * rate).astype(int) % 1023] * np.exp(
+        2j * np.pi * (dop * t + step_hz * after))
+    twin = code[np.floor(t * rate).astype(int) % 1023] * np.exp(1j * (2 * np.pi * dop * t + 1.0))
+    x = (np.sqrt(10 ** 5.9 / fs) * spoofer + np.sqrt(10 ** 4.9 / fs) * twin
+         + (rng.standard_normal(t.size) + 1j * rng.standard_normal(t.size)) / np.sqrt(2)).astype(np.complex64)
+    ch = Channel(prn, fs, 0.0, initial_state(0.0, 0, dop + 5.0, fs, 0), LoopConfig())
+    dopplers = []
+    for end in range(int(fs * 0.1), t.size + 1, int(fs * 0.1)):
+        first = int(ch.st[9])       # NEXT_SAMPLE: the buffer from the channel's next code period on
+        ch.process(x[first:end], first)
+        assert ch.locked, f"lost lock at {end / fs:.1f} s"
+        dopplers.append((end / fs, ch.doppler_at(0)))
+    late = np.array([d for s, d in dopplers if s > 3.0])
+    assert np.all(np.abs(late - (dop + step_hz)) < 3.0), late

@@ -290,8 +290,9 @@ class DefendedReceiver:
     def _label(self, fix: Fix) -> None:
         """What a fix is built on. Before any alarm it is nominal when its ranges pass the integrity test (RAIM),
         else unverified (they disagree, or there are too few to check). After an alarm it is spoofing_detected
-        (detect only, or a PRN in it neither resolved nor under cancellation: its range may still be the
-        attacker's), then recovering until every PRN it uses is resolved (verified clean after cancellation, or
+        (detect only, or a PRN in it neither resolved nor under cancellation nor found merged with its legitimate
+        twin -- the attacker's signal aligned with it, under the examination's watch for the two to part: its range
+        may still be the attacker's anywhere), then recovering until every PRN it uses is resolved (verified clean after cancellation, or
         examined and found to hold one signal) and its ranges pass the integrity test with redundancy to spare: a
         mix of legitimate and spoofed ranges, or a fix that cannot be checked, is never recovered. A PRN whose
         cancelled peak was chosen by assumption (the stronger one, with no earlier lock or maneuver to say so) is not
@@ -310,7 +311,8 @@ class DefendedReceiver:
                 # range to carry forward too
                 locked = {p: ch for p, ch in self.inner.channels.items() if not ch.pull_in}
                 self.continuity.note(fix, _code_phases(locked, sample))
-        elif g.d["mode"] != "full" or not all(g.resolved(p) or p in g.cancel_started for p in fix.prns):
+        elif g.d["mode"] != "full" or not all(g.resolved(p) or p in g.cancel_started or p in g.merged
+                                              for p in fix.prns):
             state = "spoofing_detected"
         else:
             checked = (trusted(fix.raim) and fix.n_sats - 4 >= g.d["min_redundancy"]

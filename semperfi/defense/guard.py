@@ -61,8 +61,9 @@ class SpoofGuard:
         self.gave_up: dict[int, str] = {}
         # PRNs cancelled on power alone (no legitimate peak in sight), and those of them whose cancellation took
         # everything away: the attacker's signal holds the legitimate one within it (aligned in code and carrier),
-        # so it is left to the receiver, which tracks the two merged (fixes on it stay spoofing_detected) and sees
-        # them part (beat, two-path) when the attacker moves
+        # so it is left to the receiver, which tracks the two merged (the range within what the two-path test
+        # resolves of the legitimate one: fixes on it are recovering, never good) and sees them part when the
+        # attacker moves
         self._blind: set[int] = set()
         self.merged: set[int] = set()
         # PRNs whose attacker's peak was chosen by an assumption (the stronger one, the later one, a user's list), not
@@ -222,6 +223,7 @@ class SpoofGuard:
     def _alarm(self, prn: int, t_s: float, event: dict) -> None:
         """An alarm on a PRN, whatever raised it (the event's fields say what)."""
         self.alarmed_prns.add(prn)
+        self.merged.discard(prn)
         if self.alarm_t_s is None:
             self.alarm_t_s = t_s
         self._emit("spoofing_alarm", t_s, **{"prn": prn, **event})
@@ -411,11 +413,14 @@ class SpoofGuard:
 
     def _left_merged(self, prn: int, t_s: float) -> None:
         """A cancellation on power alone left no signal at all: the legitimate one went with the attacker's, aligned
-        within it. Cancelling it would leave the receiver without the satellite; the PRN stays alarmed, uncancelled."""
+        within it. Cancelling it would leave the receiver without the satellite; the PRN stays alarmed, uncancelled,
+        and is examined again at the highest sensitivity (two-path) for the two to part: its next alarm is decided
+        like any other."""
         self.canceller.drop(prn)
         del self.cancel_started[prn]
         self._blind.discard(prn)
         self.merged.add(prn)
+        self.detector.alarmed.discard(prn)
         self._emit("cancellation_dropped", t_s, prn=prn, reason="nothing left after cancellation: the attacker's "
                    "signal carries the legitimate one, aligned")
 

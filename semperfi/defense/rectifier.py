@@ -18,18 +18,15 @@ seconds away from the receiver's prediction is refused, and the rectified ranges
 from dataclasses import dataclass
 
 from ..gps.codes import chips_offset
-from ..gps.constants import CA_CODE_LENGTH_CHIPS, L1_HZ, SECONDS_PER_WEEK
+from ..gps.constants import CA_CODE_LENGTH_CHIPS, CA_CODE_PERIOD_S, SECONDS_PER_WEEK
 from ..gps.time import wrap_week_s
+from ..receiver.carried_time import Donor, carried, donor
 from ..receiver.navigation import NavDecoder
 from ..receiver.tracking import Channel
 from .canceller import AdversaryTrack, Canceller
 
 MODES = ("auto", "always", "off")
-CODE_PERIOD_S = 1e-3
 MAX_TIME_STEP_S = 0.010        # a spoofer's time this far from the receiver's prediction or further is refused
-# a donor's time is carried this far (its Doppler, the spoofer's drag, move a code epoch by well under a microsecond
-# over it: nothing next to the half millisecond the carried time is rounded by)
-DONOR_REACH_S = 5.0
 
 
 @dataclass(frozen=True)
@@ -51,18 +48,15 @@ class Rectifier:
         self.refused: dict[int, str] = {}      # PRN -> why its spoofer's time was not taken (latest)
         # PRN -> (sample of a code epoch, its transmit time, Doppler): a receiver channel that tracked the spoofer
         # and read its time before the canceller took the signal over
-        self._donors: dict[int, tuple[float, float, float]] = {}
+        self._donors: dict[int, Donor] = {}
         self._inherited: dict[AdversaryTrack, tuple[int, float]] = {}   # track -> (code period, its transmit time)
 
     def inherit(self, prn: int, channel: Channel, decoder: NavDecoder | None) -> None:
         """A receiver channel on the peak now being cancelled hands its time on: the canceller's fresh track of the
-        same signal need not wait a subframe (6-12 s) to read it again."""
-        if decoder is None or decoder.time_anchor is None or channel.bits.edge_ms is None or channel.ms < 2:
-            return
-        ms = channel.ms - 2   # an epoch with one after it in the history
-        start_bit, t0 = decoder.time_anchor
-        t_sv = t0 + (ms - channel.ms_of_bit(start_bit)) * CODE_PERIOD_S
-        self._donors[prn] = (float(channel.epoch_sample[ms % channel.HISTORY_MS]), t_sv, channel.doppler_at(0))
+        same signal need not wait a subframe (6-12 s) to read it again (receiver/carried_time)."""
+        given = donor(channel, decoder)
+        if given is not None:
+            self._donors[prn] = given
 
     def update(self, canceller: Canceller) -> None:
         """Read the data bits every spoofer's channel has completed (call after each push through the canceller)."""
@@ -78,19 +72,14 @@ class Rectifier:
                 self._take_over(tr)
 
     def _take_over(self, tr: AdversaryTrack) -> None:
-        """The donor's time carried to the track's latest code epoch (a code epoch leaves the satellite on a whole
-        millisecond: the carried time rounds to it, exactly while the two lay within half a code period)."""
-        ch = tr.channel
-        if ch.ms < 2:
+        """The donor's time carried to the track's latest code epoch (receiver/carried_time)."""
+        if tr.channel.ms < 2:
             return
-        sample, t_sv, doppler_hz = self._donors[tr.prn]
-        ms = ch.ms - 2
-        epoch = float(ch.epoch_sample[ms % ch.HISTORY_MS])
-        if abs(epoch - sample) > DONOR_REACH_S * ch.fs_hz:
+        anchor = carried(tr.channel, self._donors[tr.prn])
+        if anchor is None:
             del self._donors[tr.prn]
-            return
-        carried = t_sv + (epoch - sample) / ch.fs_hz * (1.0 + doppler_hz / L1_HZ)
-        self._inherited[tr] = (ms, round(carried / CODE_PERIOD_S) * CODE_PERIOD_S % SECONDS_PER_WEEK)
+        else:
+            self._inherited[tr] = anchor
 
     def _time_anchor(self, tr: AdversaryTrack, dec: NavDecoder) -> tuple[int, float] | None:
         """(code period, its transmit time) of a track: from its own decoded message, else inherited."""
@@ -130,14 +119,14 @@ class Rectifier:
             at_chips, legit_chips = adv.code_phase_at(sample), legit.code_phase_at(sample)
             if t_at is None or at_chips is None or legit_chips is None:
                 continue
-            offset = chips_offset(legit_chips, at_chips) / CA_CODE_LENGTH_CHIPS * CODE_PERIOD_S
+            offset = chips_offset(legit_chips, at_chips) / CA_CODE_LENGTH_CHIPS * CA_CODE_PERIOD_S
             t_sv = (t_at + offset) % SECONDS_PER_WEEK
             eph = ephemeris_of(prn, t_sv) or dec.ephemeris
             if eph is None:
                 continue
             predicted = predict(eph, sample)
             if predicted is not None:
-                whole = round(wrap_week_s(predicted - t_sv) / CODE_PERIOD_S) * CODE_PERIOD_S
+                whole = round(wrap_week_s(predicted - t_sv) / CA_CODE_PERIOD_S) * CA_CODE_PERIOD_S
                 if abs(whole) >= MAX_TIME_STEP_S:
                     self.refused[prn] = f"{whole * 1e3:+.0f} ms from the receiver clock's prediction"
                     return None

@@ -12,6 +12,7 @@ from ..gps.geometry import light_time_range
 from ..gps.constants import L1_WAVELENGTH_M, SECONDS_PER_WEEK, SPEED_OF_LIGHT_M_S
 from ..gps.time import GpsTime, wrap_week_s
 from .acquisition import Caf, DopplerGrid, acquire, is_cross_correlation
+from .carried_time import DONOR_REACH_S, Donor, carried, donor
 from .navigation import ASSIST_MAX_AGE_S, AssistedNav, NavDecoder
 from .pvt import solve
 from .rinex_obs import ObsEpoch
@@ -25,6 +26,9 @@ TYPICAL_FLIGHT_S = 0.075       # first guess of the signals' travel time, to sta
 # Klobuchar coefficients to use until subframe 4 page 18 (broadcast every 12.5 min) has been decoded: RTKLIB's
 # defaults, a typical set; far better than no ionosphere model at all.
 FALLBACK_IONO = IonoParams((0.1118e-07, -0.7451e-08, -0.5961e-07, 0.1192e-06), (0.1167e+06, -0.2294e+06, -0.1311e+06, 0.1049e+07))
+
+
+WARM_RETRY_S = 0.5    # how soon a PRN lost moments ago is searched again (its carried time lasts DONOR_REACH_S)
 
 
 @dataclass
@@ -100,7 +104,11 @@ class Receiver:
         # ephemerides decoded on a PRN's earlier channels (a spoofer's peak, in a stealthy attack the same data),
         # used until the PRN's own decoder has one: a replaced channel must not wait 30 s for subframes 1-3
         self.provisional_ephemerides: dict[int, object] = {}
-        self._retired: dict[int, NavDecoder] = {}   # the last decoder of a PRN whose channel went, for the next one
+        self._retired: dict[int, NavDecoder] = {}
+        # PRN -> the time a channel that went had read, for the PRN's next channel (receiver/carried_time); and the
+        # (channel, code period, its transmit time) that next channel took from it
+        self._donors: dict[int, Donor] = {}
+        self._carried: dict[int, tuple[Channel, int, float]] = {}   # the last decoder of a PRN whose channel went, for the next one
 
     # -- events ---------------------------------------------------------------------------------------------
     def _emit(self, kind: str, t_rx_s: float, **fields) -> None:
@@ -163,7 +171,12 @@ class Receiver:
         self.stats.samples = end
         if end >= self._next_acq_sample and self._buf.size >= self.acq_samples:
             self._acquire()
-            self._next_acq_sample = end + int(self.cfg["acquisition"]["reacquire_s"] * self.fs_hz)
+            every_s = self.cfg["acquisition"]["reacquire_s"]
+            if any(self._donors.get(prn) is not None and end - self._donors[prn].epoch_sample
+                   < DONOR_REACH_S * self.fs_hz for prn in self.warm):
+                # a PRN lost moments ago whose time its next channel could still take: searched again soon
+                every_s = min(every_s, WARM_RETRY_S)
+            self._next_acq_sample = end + int(every_s * self.fs_hz)
         run_each(lambda ch: ch.process(self._buf, self._base), [*self.channels.values(), *self.standby.values()])
         self._decode_standby()
         for prn, ch in list(self.channels.items()):
@@ -179,7 +192,7 @@ class Receiver:
                 self._emit("loss_of_lock", end / self.fs_hz, prn=prn, cn0_dbhz=round(float(ch.cn0_dbhz), 1))
                 self.warm[prn] = ch.doppler_at(0)
                 del self.channels[prn]
-                self._retire(prn, self.decoders.pop(prn, None))
+                self._retire(prn, self.decoders.pop(prn, None), ch)
                 self._next_acq_sample = min(self._next_acq_sample, end + self.acq_samples)
         self._measure()
         keep = max(2 * self.samples_per_ms + 2, self.acq_samples)
@@ -225,10 +238,16 @@ class Receiver:
         self.warm.pop(prn, None)
         self._next_acq_sample = min(self._next_acq_sample, self._base + self._buf.size + self.acq_samples)
 
-    def _retire(self, prn: int, decoder: NavDecoder | None) -> None:
-        """A decoder whose channel goes: its ephemeris serves provisionally, its subframes seed the PRN's next."""
+    def _retire(self, prn: int, decoder: NavDecoder | None, channel: Channel | None = None) -> None:
+        """A decoder whose channel goes: its ephemeris serves provisionally, its subframes seed the PRN's next, and
+        after a loss of lock (channel given) the time it read times the PRN's next channel until that one reads its
+        own. Not a channel dropped from a peak under cancellation: the time that reaches the legitimate signal from
+        the spoofer's is the rectifier's, checked and labelled so."""
         if decoder is None:
             return
+        given = donor(channel, decoder) if channel is not None else None
+        if given is not None:
+            self._donors[prn] = given
         if decoder.ephemeris is not None:
             self.provisional_ephemerides[prn] = decoder.ephemeris
         self._retired[prn] = decoder
@@ -368,15 +387,50 @@ class Receiver:
     def _own_transmit_time(self, prn: int, ch: Channel, sample: float) -> tuple[float, object] | None:
         """(t_sv_s, ephemeris) at a sample from the channel's own time anchor (its HOW), or None."""
         anchor = self.decoders[prn].time_anchor
-        if anchor is None or ch.bits.edge_ms is None:
-            return None
-        start_bit, t_sv_start = anchor
-        t_sv = ch.transmit_time_at(sample, ch.ms_of_bit(start_bit), t_sv_start)
+        if anchor is not None and ch.bits.edge_ms is not None:
+            start_bit, t_sv_start = anchor
+            ms_ref = ch.ms_of_bit(start_bit)
+            self._donors.pop(prn, None)
+        else:
+            inherited = self._inherited_time(prn, ch)
+            if inherited is None:
+                return None
+            ms_ref, t_sv_start = inherited
+        t_sv = ch.transmit_time_at(sample, ms_ref, t_sv_start)
         if t_sv is None:
             return None
         t_sv %= SECONDS_PER_WEEK
         eph = self._ephemeris(prn, t_sv)
         return None if eph is None else (t_sv, eph)
+
+    def _inherited_time(self, prn: int, ch: Channel) -> tuple[int, float] | None:
+        """(code period, its transmit time) a channel took from the PRN's previous one, if that one had read it."""
+        got = self._carried.get(prn)
+        if got is not None and got[0] is ch:
+            return got[1], got[2]
+        given = self._donors.get(prn)
+        anchor = carried(ch, given) if given is not None else None
+        if anchor is None:
+            return None
+        del self._donors[prn]
+        if not self._agrees_with_clock(prn, ch, anchor):
+            return None
+        self._carried[prn] = (ch, *anchor)
+        self._emit("time_inherited", ch.epoch_sample[anchor[0] % ch.HISTORY_MS] / self.fs_hz, prn=prn,
+                   gap_s=round((ch.epoch_sample[anchor[0] % ch.HISTORY_MS] - given.epoch_sample) / self.fs_hz, 3))
+        return anchor
+
+    def _agrees_with_clock(self, prn: int, ch: Channel, anchor: tuple[int, float]) -> bool:
+        """Whether a carried time lies within half a code period of what the last fix's clock predicts (true without a
+        fix or an ephemeris: nothing to check against); a whole millisecond away, an event, and it is not taken."""
+        eph = self._ephemeris(prn, anchor[1])
+        sample = float(ch.epoch_sample[anchor[0] % ch.HISTORY_MS])
+        predicted = self.predicted_transmit_time(eph, sample) if eph is not None else None
+        if predicted is None or abs(wrap_week_s(predicted - anchor[1])) < 5e-4:
+            return True
+        self._emit("time_inheritance_refused", sample / self.fs_hz, prn=prn,
+                   off_ms=round(wrap_week_s(predicted - anchor[1]) * 1e3, 3))
+        return False
 
     def predicted_transmit_time(self, eph, sample: float, fix: Fix | None = None,
                                 pos_ecef_m: np.ndarray | None = None) -> float | None:
