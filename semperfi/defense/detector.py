@@ -39,6 +39,11 @@ class DetectorConfig:
     # mismatch (the delay grid's step, the front end's filtering) is significant against the noise, and a second
     # path absorbs it. A spoofer that matters is at most ~10 dB weaker than the legitimate signal.
     two_path_min_ratio_db: float = -13.0
+    # A PRN whose attacker was found aligned with its twin (merged) is alarmed again only once the two have parted
+    # this far: closer, the fit's separation is its minimum spacing's (biased up from the true one), the canceller
+    # cannot take the two apart, and what it leaves is further off than the merged peak was. Meanwhile the range is
+    # within this of the twin's (the position of a time push, a common delay, not at all).
+    merged_separation_chips: float = 0.5
 
     @property
     def separation_chips(self) -> float:
@@ -61,6 +66,13 @@ class PeakPair:
         return {"prn": self.prn, "main": peak(self.main), "auxiliary": peak(self.auxiliary),
                 "separation_chips": round(self.separation_chips, 3), "separation_ns": round(self.separation_chips / CA_CHIP_RATE_HZ * 1e9, 1),
                 "found_by": self.source}
+
+
+# A peak is cross-talk when the stronger signals' summed cross-talk is this share of its power or more: what is left
+# is then no stronger than what is explained. Measured (tests/test_crosstalk_twopath.py, eight 55 dB-Hz signals
+# beside a 45 dB-Hz PRN): cross-talk "paths" are explained for 0.7-1.1 of their fitted power, a real second signal
+# 3 dB down for 0.1-0.4.
+CROSS_TALK_SHARE = 0.5
 
 
 def auxiliary_peaks(caf: Caf, cafs: dict[int, Caf], cfg: DetectorConfig, fs_hz: float) -> list[PeakPair]:
@@ -87,8 +99,8 @@ def is_cross_talk(peak: Peak, caf: Caf, cafs: dict[int, Caf], cfg: DetectorConfi
     """Whether a peak is explained by another PRN's signal seen through the two codes' cross-correlation.
 
     The cross-correlation of two C/A codes at given code phases and Dopplers is deterministic: it is computed for
-    each stronger signal present, their powers summed and compared with the peak's (a peak that they explain for a
-    third or more is cross-talk). Strong peaks are never cross-talk: cross-correlation lies 21 dB down or more.
+    each stronger signal present, their powers summed and compared with the peak's (a peak that they explain for
+    CROSS_TALK_SHARE or more is cross-talk). Strong peaks are never cross-talk: cross-correlation lies 21 dB down or more.
 
     block_s: the correlation's coherent length when it is not the CAF's -- the two-path fit takes each 1 ms block's
     amplitude apart, so a stronger signal 100 Hz away, which a 40 ms coherent sum averages out, still leaks into
@@ -108,7 +120,7 @@ def is_cross_talk(peak: Peak, caf: Caf, cafs: dict[int, Caf], cfg: DetectorConfi
             continue
         per_block = np.sum((mine * _signal(prn, b.code_phase_chips, b.doppler_hz, t)).reshape(-1, k), axis=1) / k
         leaked += b.metric * float(np.mean(np.abs(per_block) ** 2))
-    return leaked >= peak.metric / 3.0
+    return leaked >= peak.metric * CROSS_TALK_SHARE
 
 
 def _signal(prn: int, code_phase_chips: float, doppler_hz: float, t_s: np.ndarray) -> np.ndarray:
@@ -177,6 +189,7 @@ class SpoofingDetector:
         self.tracks: dict[int, list[_Track]] = {}
         self.streak: dict[int, int] = {}
         self.alarmed: set[int] = set()
+        self.merged: set[int] = set()            # PRNs whose attacker is aligned with the twin (the guard's)
         self.first_alarm_s: float | None = None
         self.single_looks: dict[int, int] = {}   # PRN -> consecutive sensitive looks that found one signal only
         self.close: dict[int, PeakPair] = {}     # PRN -> a second signal under its peak, closer than the separation
@@ -244,6 +257,8 @@ class SpoofingDetector:
                 # to it (seen on GPS-SDR-SIM: 42 dB-Hz PRNs beside 60 dB-Hz spoofers, a "path" 12 dB down)
                 pairs = [hidden] if hidden and not is_cross_talk(hidden.auxiliary, caf, cafs, self.cfg, self.fs_hz,
                                                                  block_s=TWO_PATH_BLOCK_S) else []
+            if prn in self.merged and pairs and pairs[0].separation_chips < self.cfg.merged_separation_chips:
+                pairs = []
             peaks = [caf.best] + [p.auxiliary for p in pairs]
             tracks = self._follow(prn, [pairs[0].main, pairs[0].auxiliary] if pairs else peaks[:1], t_s)
             if not pairs:

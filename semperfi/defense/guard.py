@@ -61,11 +61,11 @@ class SpoofGuard:
         self.gave_up: dict[int, str] = {}
         # PRNs cancelled on power alone (no legitimate peak in sight), and those of them whose cancellation took
         # everything away: the attacker's signal holds the legitimate one within it (aligned in code and carrier),
-        # so it is left to the receiver, which tracks the two merged (the range within what the two-path test
-        # resolves of the legitimate one: fixes on it are recovering, never good) and sees them part when the
-        # attacker moves
+        # so it is left to the receiver, which tracks the two merged (the range within the detector's
+        # merged_separation_chips of the legitimate one until it alarms: fixes on it are recovering, never good)
         self._blind: set[int] = set()
         self.merged: set[int] = set()
+        self.detector.merged = self.merged
         # PRNs whose attacker's peak was chosen by an assumption (the stronger one, the later one, a user's list), not
         # known: the attacker controls its power and delay, so what is cancelled may be the legitimate signal
         self.guessed: set[int] = set()
@@ -189,7 +189,7 @@ class SpoofGuard:
         samples the next looks search."""
         peaks = {p: c.best for p, c in cafs.items() if examinable(c.best, c, cafs, self.detector.cfg, self.fs_hz)}
         for prn, cn0_dbhz in implausible_peaks(peaks).items():
-            if prn in self.detector.alarmed:
+            if prn in self.detector.alarmed or prn in self.merged:   # merged: known, watched for the two to part
                 continue
             self.detector.raise_alarm(prn, t_s)
             peak = peaks[prn]
@@ -383,7 +383,10 @@ class SpoofGuard:
             cafs = dict(self._last_cafs)
             cafs.update(self._acquire(self._clean, [prn], peak.doppler_hz, 2000.0))
             caf, target, reason = cafs[prn], None, ""
-            if caf.best is None and stage == 0 and prn in self._blind:
+            # a peak the detector would not examine (cross-talk, or the field of near-threshold maxima strong signals'
+            # residues raise) is no signal of this PRN's left
+            left = examinable(caf.best, caf, cafs, self.detector.cfg, self.fs_hz)
+            if not left and stage == 0 and prn in self._blind:
                 self._left_merged(prn, t_s)
                 continue
             if caf.best is not None and self._still_dominates(prn, caf.best.code_phase_chips, first):

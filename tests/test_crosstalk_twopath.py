@@ -1,0 +1,45 @@
+"""The two-path fit beside strong signals of other PRNs: their cross-talk into each 1 ms block is not a second path."""
+
+import numpy as np
+import pytest
+
+from semperfi.defense.detector import TWO_PATH_BLOCK_S, DetectorConfig, hidden_pair, is_cross_talk
+from semperfi.gps.codes import ca_code
+from semperfi.gps.constants import CA_CHIP_RATE_HZ, L1_HZ
+from semperfi.receiver.acquisition import DopplerGrid, acquire
+
+FS = 2.6e6
+T = np.arange(int(FS * 0.04)) / FS
+
+
+def _signal(prn, chips, doppler_hz, phase, cn0_dbhz):
+    code = ca_code(prn)[np.floor(chips + T * CA_CHIP_RATE_HZ * (1 + doppler_hz / L1_HZ)).astype(int) % 1023]
+    return np.sqrt(10 ** (cn0_dbhz / 10) / FS) * code * np.exp(1j * (2 * np.pi * doppler_hz * T + phase))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_strong_prns_cross_talk_is_no_second_path_and_a_real_one_is(seed):
+    """A 45 dB-Hz PRN beside eight 60 dB-Hz spoofers of other PRNs (a +10 dB attacker on the strong satellites):
+    the fit finds a "second path" some 12 dB down that is their summed cross-talk, and it is judged so; a real
+    second signal 4 dB down a chip away is not."""
+    rng = np.random.default_rng(seed)
+    x = (rng.standard_normal(T.size) + 1j * rng.standard_normal(T.size)) / np.sqrt(2)
+    strong = rng.choice([p for p in range(1, 33) if p != 5], 8, replace=False)
+    for prn in strong:
+        x = x + _signal(prn, rng.uniform(0, 1023), rng.uniform(-3000, 3000), rng.uniform(0, 2 * np.pi), 55.0)
+    doppler = rng.uniform(-3000, 3000)
+    x = x + _signal(5, 300.3, doppler, 0.3, 45.0)
+    cfg = DetectorConfig()
+
+    def judged(samples):
+        samples = samples.astype(np.complex64)
+        cafs = acquire(samples[:int(FS * 1e-3) * 20], FS, [5, *strong], DopplerGrid(0, 5000, 333.0), 0.0, 2, 10,
+                       1e-3, 8)
+        pair = hidden_pair(samples, FS, 0.0, cafs[5].best, cfg, sensitive=True)
+        return pair, pair is not None and is_cross_talk(pair.auxiliary, cafs[5], cafs, cfg, FS,
+                                                        block_s=TWO_PATH_BLOCK_S)
+
+    pair, cross_talk = judged(x)
+    assert pair is None or cross_talk, pair
+    pair, cross_talk = judged(x + _signal(5, 301.3, doppler, 2.0, 42.0))
+    assert pair is not None and not cross_talk and abs(pair.separation_chips - 1.0) < 0.15, pair
