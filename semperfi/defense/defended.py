@@ -58,7 +58,8 @@ class DefendedReceiver:
         maneuver = ManeuverIdentifier(imu_track, fs_hz, if_hz) if imu_track is not None else \
             LinkedManeuver(flight_link, fs_hz, if_hz, ready=lambda: self.inner.last_fix is not None,
                            sky=self._sky) if flight_link is not None else None
-        self.guard = SpoofGuard(cfg, fs_hz, if_hz, events, on_cancel=self._on_cancel, maneuver=maneuver,
+        self.guard = SpoofGuard(cfg, fs_hz, if_hz, events, on_cancel=self._on_cancel,
+                                on_release=lambda prn, sample: self.inner.search_from(sample), maneuver=maneuver,
                                 nav_context=lambda: (self.inner.ephemeris_at, self.inner.last_fix),
                                 continuing=self._continuing if imu_track is not None else None)
         self.inner = Receiver(cfg, fs_hz, if_hz, assisted, on_fix=self._label, events=events, week_hint=week_hint,

@@ -26,13 +26,14 @@ EXAMINE_NONCOHERENT = 20
 # is good to a few hundredths of a chip on a dominant peak)
 TWIN_MIN_CHIPS = 0.15
 TWIN_MATCH_CHIPS = 0.25   # an examination's code phase (2 ms coherent, interpolated) against the tracked twin's
+RELEASE_MARGIN_S = 2e-3   # a dropped cancellation leaves the samples cleaned this much later (held-back period)
 MAX_SWAPS = 2          # a PRN whose cancelled peak is found legitimate this often is given up
 EXAMINE_MAX_PEAKS = 16  # a strong spoofer's Doppler and code sidelobes are local maxima too: room for its twin
 
 
 class SpoofGuard:
-    def __init__(self, cfg: dict, fs_hz: float, if_hz: float = 0.0, events=None, on_cancel=None, maneuver=None,
-                 nav_context=None, real_samples: bool = False, continuing=None):
+    def __init__(self, cfg: dict, fs_hz: float, if_hz: float = 0.0, events=None, on_cancel=None, on_release=None,
+                 maneuver=None, nav_context=None, real_samples: bool = False, continuing=None):
         """maneuver: a ManeuverIdentifier (an INS track with a maneuver in it), whose verdicts replace the policy's
         guesses; nav_context() -> (ephemeris_of(prn, tow_s), a recent fix) for its lines of sight.
         real_samples: the samples are real values at an IF (their output must stay real and free of both images)."""
@@ -41,6 +42,8 @@ class SpoofGuard:
             raise ValueError(f"--defense wants off, detect or full; got '{self.d['mode']}'")
         self.policy, self.policy_prns = parse_policy(self.d["adversarial"])
         self.fs_hz, self.if_hz, self.events, self.on_cancel = float(fs_hz), float(if_hz), events, on_cancel
+        # on_release(prn, sample): a cancellation dropped, the PRN's signal back in the cleaned samples from there
+        self.on_release = on_release
         self.detector = SpoofingDetector(fs_hz, if_hz, DetectorConfig(separation_s=self.d["separation_ns"] * 1e-9,
                                                                       confirmations=self.d["confirmations"]))
         self.canceller = Canceller(fs_hz, if_hz, CancellerConfig(max_stages=self.d["max_iterations"],
@@ -419,13 +422,18 @@ class SpoofGuard:
         within it. Cancelling it would leave the receiver without the satellite; the PRN stays alarmed, uncancelled,
         and is examined again at the highest sensitivity (two-path) for the two to part: its next alarm is decided
         like any other."""
-        self.canceller.drop(prn)
+        self._release(prn)
         del self.cancel_started[prn]
         self._blind.discard(prn)
         self.merged.add(prn)
         self.detector.alarmed.discard(prn)
         self._emit("cancellation_dropped", t_s, prn=prn, reason="nothing left after cancellation: the attacker's "
                    "signal carries the legitimate one, aligned")
+
+    def _release(self, prn: int) -> None:
+        self.canceller.drop(prn)
+        if self.on_release is not None:   # the samples cleaned from now on (the canceller holds a code period back)
+            self.on_release(prn, self._cleaned + int(self.fs_hz * RELEASE_MARGIN_S))
 
     def identified_by_continuity(self, prn: int, cancelled_is_attacker: bool, t_s: float) -> None:
         """The continuity test decided a guessed PRN: the cancelled peak was the attacker's (no longer a guess), or
@@ -437,7 +445,7 @@ class SpoofGuard:
             self.gave_up[prn] = "the cancelled peak continues the ranges of the last nominal fix: it is the legitimate one"
         else:
             self.swapped[prn] = self.swapped.get(prn, 0) + 1
-            self.canceller.drop(prn)
+            self._release(prn)
             self.guessed.discard(prn)
             self._forget(prn)
         then = "known" if cancelled_is_attacker else "given up" if prn in self.gave_up else "cancellation dropped"

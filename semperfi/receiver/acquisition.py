@@ -310,7 +310,9 @@ def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: Dopple
         # the noise floor from every MEDIAN_STRIDE-th code phase: the same median to a fraction of a percent
         sample = raw[:, ::MEDIAN_STRIDE]
         sigma2 = (np.median(sample, axis=1, keepdims=True) if tail_threshold else np.median(sample)) / chi_median
-        power = raw / np.asarray(sigma2, dtype=np.float32)
+        # a window of zeros (a front end's dropout, a gap filled by the reader) has no floor: nothing is found in it
+        sigma2 = np.maximum(np.asarray(sigma2, dtype=np.float32), np.finfo(np.float32).tiny)
+        power = raw / sigma2
         thr = thr_theory
         if tail_threshold:
             thr = max(thr, _empirical_threshold(power, pfa_cell, dopplers, coherent_ms * CA_CODE_PERIOD_S))

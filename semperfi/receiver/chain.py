@@ -236,7 +236,12 @@ class Receiver:
             del self.channels[prn]
         self._retire(prn, self.decoders.pop(prn, None))
         self.warm.pop(prn, None)
-        self._next_acq_sample = min(self._next_acq_sample, self._base + self._buf.size + self.acq_samples)
+        self.search_from(self._base + self._buf.size)
+
+    def search_from(self, sample: int) -> None:
+        """The next acquisition as soon as it has a window of samples from this absolute index on (a PRN dropped,
+        or its signal back in the samples from there: a cancellation dropped), not at the next reacquire_s."""
+        self._next_acq_sample = min(self._next_acq_sample, int(sample) + self.acq_samples)
 
     def _retire(self, prn: int, decoder: NavDecoder | None, channel: Channel | None = None) -> None:
         """A decoder whose channel goes: its ephemeris serves provisionally, its subframes seed the PRN's next, and
