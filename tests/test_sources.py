@@ -144,6 +144,42 @@ def test_a_stream_lost_mid_run_keeps_its_fixes_and_fails_with_one_line(assisted)
     assert len(lost) == 1 and lost[0]["t_rx_s"] == pytest.approx(cut_s, abs=0.11)
 
 
+def test_a_stalled_standard_input_is_lost_with_one_line_not_a_hang(assisted):
+    """16 s of samples through a pipe whose writer then hangs: the run keeps its fixes, says in one line that the
+    input stalled, records input_lost and exits non-zero, PIPE_STALL_S later, instead of waiting forever."""
+    d, nav = assisted
+    data = (d / "a.bin").read_bytes()[:int(16.0 * FS) * 2]
+    with open(d / "stalled.err", "wb") as stderr:
+        proc = subprocess.Popen([sys.executable, "-m", "semperfi.cli", "run", "-", "--fs", str(FS), "--format",
+                                 "ibyte", "--nav", str(nav), "--out", str(d / "stalled"), "--defense", "off"],
+                                stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=stderr)
+        try:
+            proc.stdin.write(data)
+            proc.stdin.flush()
+            proc.wait(timeout=source_module.PIPE_STALL_S + 120)    # the pipe stays open: no end of stream
+        finally:
+            proc.kill()
+            proc.stdin.close()
+    err = (d / "stalled.err").read_text()
+    assert proc.returncode not in (0, None)
+    assert err.strip().count("\n") == 0 and "stalled" in err, err
+    fixes = read_fixes(d / "stalled")
+    assert fixes and 15.0 < float(fixes[-1]["t_rx_s"]) < 16.0
+    lost = [e for e in _events(d / "stalled") if e["event"] == "input_lost"]
+    assert len(lost) == 1 and lost[0]["t_rx_s"] == pytest.approx(16.0, abs=0.11)
+
+
+def test_a_pipe_that_stays_silent_is_a_source_error_after_what_arrived():
+    r, w = os.pipe()
+    os.write(w, np.zeros(4000, dtype=np.int16).tobytes())
+    with os.fdopen(r, "rb") as stream:
+        src = source_module._PipeInput(stream, source_module.as_format("ishort"), stall_s=0.2)
+        assert src.take(2000).size == 2000
+        with pytest.raises(SourceError, match="stalled"):
+            src.take(2000)
+    os.close(w)
+
+
 def test_skip_and_duration_window_the_run(assisted):
     d, nav = assisted
     result = _run([str(d / "a.bin"), "--skip", "2", "--duration", "15", "--nav", str(nav), "--out", str(d / "win")])

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import os
+import select
 import sys
 import time
 from dataclasses import dataclass, field
@@ -32,6 +33,7 @@ WAITING_FRACTION = 0.5   # ... "while we wait": at least this share of the windo
 LAGGING_FRACTION = 0.98  # consuming below this fraction without waiting: we are behind the live stream
 MAX_READ_SAMPLES = 1 << 20   # input samples per read: a 25 MSa/s stream costs 8 MB at a time, not 0.1 s's 20 MB
 HUGE_ARRAY_BYTES = 1 << 22   # numpy backs arrays from this size on with transparent huge pages
+PIPE_STALL_S = 10.0      # standard input silent this long is lost (as an rtl_tcp stream: its timeout is 5 s)
 
 
 def chunk_seconds(fs_hz: float, nominal_s: float = 0.1) -> float:
@@ -63,11 +65,26 @@ class _FileInput:
 
 
 class _PipeInput:
-    """Whole blocks from a byte stream; a partial block at the end is counted in truncated_bytes."""
+    """Whole blocks from a byte stream; a partial block at the end is counted in truncated_bytes. A stream that
+    stays silent for stall_s (a pipe whose writer hangs) is a SourceError after the samples that did arrive."""
 
-    def __init__(self, stream: BinaryIO, fmt: SampleFormat):
-        self.stream, self.fmt, self.truncated_bytes = stream, fmt, 0
+    def __init__(self, stream: BinaryIO, fmt: SampleFormat, stall_s: float = PIPE_STALL_S):
+        self.stream, self.fmt, self.truncated_bytes, self.stall_s = stream, fmt, 0, stall_s
         self._leftover = np.empty(0, dtype=np.complex64)   # decoded samples of a block not yet handed out
+        try:
+            self._fd = stream.fileno()
+        except (AttributeError, OSError, ValueError):   # an in-memory stream: it cannot stall
+            self._fd = None
+
+    def _read(self, n: int) -> bytes:
+        """Up to n bytes, as soon as any are there; b"" at the end of the stream. A real descriptor is read directly
+        (never through the stream's buffer, which select cannot see), after waiting at most stall_s for it."""
+        if self._fd is None:
+            return self.stream.read(n)
+        ready, _, _ = select.select([self._fd], [], [], self.stall_s)
+        if not ready:
+            raise SourceError(f"input stalled: nothing for {self.stall_s:g} s")
+        return os.read(self._fd, n)
 
     def take(self, n: int) -> np.ndarray:
         per, size = self.fmt.samples_per_block, self.fmt.block_bytes
@@ -75,7 +92,7 @@ class _PipeInput:
         want = -(-need // per) * size
         raw = bytearray()
         while len(raw) < want:
-            block = self.stream.read(want - len(raw))
+            block = self._read(want - len(raw))
             if not block:
                 break
             raw += block
