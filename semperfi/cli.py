@@ -59,6 +59,10 @@ class _OneLineGroup(click.Group):
         from .errors import InternalError, SemperFiError, describe
         try:
             return super().invoke(ctx)
+        except click.exceptions.UsageError as exc:   # a mistyped option or value: one line, not click's usage block
+            command = f" {ctx.invoked_subcommand}" if ctx.invoked_subcommand else ""
+            click.echo(f"semperfi: error: {exc.format_message()} (semperfi{command} --help says more)", err=True)
+            sys.exit(exc.exit_code)
         except (click.exceptions.ClickException, click.exceptions.Exit, click.exceptions.Abort):
             raise
         except SemperFiError as exc:
@@ -117,11 +121,12 @@ def _parse_prns(text: str) -> list[int]:
     for part in text.split(","):
         lo, _, hi = part.partition("-")
         try:
-            prns.extend(range(int(lo), int(hi or lo) + 1))
+            first, last = int(lo), int(hi or lo)
         except ValueError:
             _fail(f"--prn wants a list like 1-32 or 3,7,19; got '{text}'")
-    if not prns or not all(1 <= p <= 32 for p in prns):
-        _fail(f"--prn wants PRNs between 1 and 32; got '{text}'")
+        if not 1 <= first <= last <= 32:   # checked before the range is made: 1-99999999 is no list to build
+            _fail(f"--prn wants PRNs between 1 and 32; got '{text}'")
+        prns.extend(range(first, last + 1))
     return prns
 
 
@@ -133,11 +138,14 @@ def _parse_prns(text: str) -> list[int]:
 @click.option("--if", "if_hz", type=float, help="intermediate frequency, Hz")
 @click.option("--prn", "prn_text", default="1-32", show_default=True, help="PRNs to search")
 @click.option("--start", "start_s", type=float, default=0.0, show_default=True, help="seconds into the file")
-@click.option("--coherent-ms", type=int, default=2, show_default=True)
-@click.option("--noncoherent", type=int, default=5, show_default=True)
-@click.option("--doppler-max", "doppler_max_hz", type=float, default=6000.0, show_default=True)
-@click.option("--doppler-step", "doppler_step_hz", type=float, default=0.0, help="Hz; default 2/3 of 1/coherent")
-@click.option("--pfa", type=float, default=1e-3, show_default=True, help="false-alarm probability per PRN search")
+@click.option("--coherent-ms", type=click.IntRange(1, 20), default=2, show_default=True)
+@click.option("--noncoherent", type=click.IntRange(1, 1000), default=5, show_default=True)
+@click.option("--doppler-max", "doppler_max_hz", type=click.FloatRange(0.0, 50000.0), default=6000.0,
+              show_default=True, help="Hz: a receiver on the ground sees under 5 kHz, one at 500 m/s under 7 kHz")
+@click.option("--doppler-step", "doppler_step_hz", type=click.FloatRange(0.0, 5000.0), default=0.0,
+              help="Hz; default 2/3 of 1/coherent")
+@click.option("--pfa", type=click.FloatRange(0.0, 0.5, min_open=True), default=1e-3, show_default=True,
+              help="false-alarm probability per PRN search")
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False), help="write the CAFs of acquired PRNs as PNG")
 def acquire(file, fs_hz, fmt, iq_swap, if_hz, prn_text, start_s, coherent_ms, noncoherent, doppler_max_hz,
             doppler_step_hz, pfa, plot_path) -> None:
@@ -146,6 +154,8 @@ def acquire(file, fs_hz, fmt, iq_swap, if_hz, prn_text, start_s, coherent_ms, no
     from .receiver.acquisition import DopplerGrid, acquire as run_acquisition
 
     prns = _parse_prns(prn_text)
+    if 0.0 < doppler_step_hz < 1.0:
+        _fail(f"--doppler-step wants 0 (the default grid) or 1 Hz or more; got {doppler_step_hz:g}")
     try:
         source = open_source(file, _sample_format(fmt, iq_swap), fs_hz, if_hz, skip_s=start_s)
         try:

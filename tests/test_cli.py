@@ -67,3 +67,15 @@ def test_acquire_with_the_wrong_rate_says_what_to_check(tmp_path):
     empty = tmp_path / "empty.bin"
     empty.write_bytes(b"")
     one_line_error(semperfi("acquire", str(empty), "--fs", "2e6", "--format", "ishort"), "empty")
+
+
+@pytest.mark.parametrize("args, word", [
+    (["--coherent-ms", "0"], "--coherent-ms"), (["--noncoherent", "0"], "--noncoherent"),
+    (["--doppler-max", "1e8"], "--doppler-max"), (["--doppler-step", "1e-6"], "--doppler-step"),
+    (["--prn", "1-99999999"], "--prn"), (["--pfa", "0"], "--pfa"), (["--bogus"], "--bogus")])
+def test_acquire_values_out_of_range_are_one_line_before_any_work(tmp_path, args, word):
+    """Issue 23, item 5: each of these was a traceback (ZeroDivisionError, MemoryError) or click's usage block."""
+    (tmp_path / "x.bin").write_bytes(bytes(4000))
+    r = semperfi("acquire", str(tmp_path / "x.bin"), "--fs", "2e6", "--format", "ishort", *args)
+    assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and word in r.stderr, (r.returncode, r.stderr)
+    assert "Traceback" not in r.stderr
