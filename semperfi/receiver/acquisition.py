@@ -206,7 +206,8 @@ def second_peak_ratio(power: np.ndarray, row: int, col: int, fs_hz: float, exclu
     half = int(np.ceil(exclude_chips * fs_hz / CA_CHIP_RATE_HZ))
     rest = power.max(axis=0)
     rest[(col + np.arange(-half, half + 1)) % n] = -np.inf
-    return float(power[row, col] / rest.max()) if np.isfinite(rest.max()) else float("inf")
+    top = rest.max()
+    return float(power[row, col] / top) if np.isfinite(top) and top > 0 else float("inf")
 
 
 def _threshold(pfa: float, n_cells: int, n_noncoherent: int) -> float:
