@@ -25,7 +25,9 @@ def test_find_maneuver_in_hover_maneuver_hover(tmp_path):
 @pytest.mark.parametrize("text", ["", "a,b,c,d\n1,2,3,4\n", "t_s,north_m,east_m,down_m\n0,1,2\n",
                                   "t_s,north_m,east_m,down_m\n0,1,2,x\n1,1,1,1\n",
                                   "t_s,north_m,east_m,down_m\n0,1,2,3\n0,1,2,3\n",
-                                  "t_s,north_m,east_m,down_m\n0,nan,2,3\n1,1,2,3\n"])
+                                  "t_s,north_m,east_m,down_m\n0,nan,2,3\n1,1,2,3\n",
+                                  # issue 23, item 3: rows 1e-12 s apart (the maneuver search allocated 7 TiB)
+                                  "t_s,north_m,east_m,down_m\n" + "".join(f"{i * 1e-12!r},0,0,0\n" for i in range(50))])
 def test_rejects_hostile_csv(tmp_path, text):
     path = tmp_path / "bad.csv"
     path.write_text(text)

@@ -114,3 +114,25 @@ def test_a_malformed_required_spread_is_rejected(value):
     with pytest.raises(LinkError):
         alarm_required_spread_m({"required_spread_m": value})
     assert alarm_required_spread_m({}) == 0.0 and alarm_required_spread_m({"required_spread_m": 4.4}) == 4.4
+
+
+def _signed(body: bytes) -> bytes:
+    import hashlib
+    import hmac
+    return hmac.new(KEY, body, hashlib.sha256).digest() + body
+
+
+def test_well_signed_but_hostile_bodies_are_rejected_and_the_link_goes_on():
+    """Issue 23, item 3: a body nested 100,000 deep (RecursionError killed the reader), a NaN time stamp (it passed
+    the skew test), a sequence number of 10^30 (every honest frame after it was a "replay")."""
+    import time
+    tx, rx = pair()
+    now = time.time()
+    hostile = {"deep": b'{"v": 1, "a": ' + b"[" * 100_000 + b"]" * 100_000 + b"}",
+               "nan": b'{"v": 1, "type": "alarm", "seq": 1, "ts": NaN, "payload": {}}',
+               "leap": b'{"v": 1, "type": "alarm", "seq": 1000000000000000000000000000000, "ts": %f, "payload": {}}'
+                       % now}
+    for why, body in hostile.items():
+        with pytest.raises(LinkError):
+            rx.decode(_signed(body))
+    assert rx.decode(tx.encode("alarm", {"after": "hostile"})[4:]) == ("alarm", {"after": "hostile"})

@@ -42,6 +42,11 @@ REQUIRED_SPREAD_M = (MIN_SIGNATURE_M + INS_DRIFT_M / 2) / 0.9
 MAX_POSITION_ERROR_M = 30e3   # beyond this the lines of sight themselves are wrong, not just the prediction
 
 
+# An INS track's rows at most this close (10 kHz; IMUs log at 1 kHz or less): rows 1e-12 s apart made the maneuver
+# search's one-second smoothing a kernel of 10^12 taps
+MIN_IMU_SPACING_S = 1e-4
+
+
 @dataclass(frozen=True)
 class ImuTrack:
     """Dead-reckoned track, NED metres from any origin."""
@@ -56,8 +61,8 @@ class ImuTrack:
             raise ValueError("IMU track: need >= 2 samples and equal-length columns")
         if not np.all(np.isfinite(np.c_[self.t_s, self.north_m, self.east_m, self.down_m])):
             raise ValueError("IMU track: non-finite value")
-        if np.any(np.diff(self.t_s) <= 0):
-            raise ValueError("IMU track: t_s must increase")
+        if np.any(np.diff(self.t_s) < MIN_IMU_SPACING_S):
+            raise ValueError(f"IMU track: t_s must increase by {MIN_IMU_SPACING_S:g} s or more per row")
 
     def shifted(self, dt_s: float) -> "ImuTrack":
         """The same track with its clock moved by dt_s (a recording processed from --skip on)."""

@@ -35,6 +35,7 @@ import time
 VERSION = 1
 MAX_FRAME_BYTES = 1 << 20
 MAX_SKEW_S = 5.0
+MAX_SEQ_STEP = 1_000_000     # frames a peer may skip at once (it sends a few a minute; a TCP link loses none)
 TYPES = {"alarm", "maneuver_request", "maneuver_done", "verdict"}
 MAX_LINES_OF_SIGHT = 32
 MAX_REQUIRED_SPREAD_M = 50.0   # a maneuver under 50 m flown cannot spread further along a line of sight
@@ -86,16 +87,19 @@ class Codec:
             raise LinkError("bad authentication code")
         try:
             msg = json.loads(body.decode("utf-8"))
-        except (UnicodeDecodeError, ValueError):
+        except (UnicodeDecodeError, ValueError, RecursionError):   # RecursionError: nesting deeper than the parser
             raise LinkError("malformed body") from None
         if not isinstance(msg, dict) or msg.get("v") != VERSION:
             raise LinkError("wrong schema version")
         seq, ts, t, payload = msg.get("seq"), msg.get("ts"), msg.get("type"), msg.get("payload")
-        if (not isinstance(seq, int) or isinstance(seq, bool) or not isinstance(ts, (int, float))
+        if (not isinstance(seq, int) or isinstance(seq, bool) or not _number(ts)
                 or t not in TYPES or not isinstance(payload, dict)):
-            raise LinkError("malformed fields")
+            raise LinkError("malformed fields")   # a NaN time stamp would pass any skew test
         if seq <= self._seq_in:
             raise LinkError(f"replayed sequence number {seq}")
+        if seq - max(self._seq_in, 0) > MAX_SEQ_STEP:
+            # a leap this far ahead, accepted, would make every later honest frame a "replay"
+            raise LinkError(f"sequence number {seq} leaps more than {MAX_SEQ_STEP} past the last")
         if abs(self._clock() - ts) > MAX_SKEW_S:
             raise LinkError("stale or future timestamp")
         self._seq_in = seq
