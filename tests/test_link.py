@@ -136,3 +136,15 @@ def test_well_signed_but_hostile_bodies_are_rejected_and_the_link_goes_on():
         with pytest.raises(LinkError):
             rx.decode(_signed(body))
     assert rx.decode(tx.encode("alarm", {"after": "hostile"})[4:]) == ("alarm", {"after": "hostile"})
+
+
+def test_a_flood_of_forged_frames_is_counted_not_printed_line_by_line(caplog):
+    """Issue 23, item 7: 2,000 bad frames printed 1,360 lines."""
+    import logging
+    _, rx = pair()
+    with caplog.at_level(logging.WARNING, logger="semperfi.flight.link"):
+        for _ in range(2000):
+            with pytest.raises(LinkError):
+                rx.decode(b"x" * 64)
+    assert rx.rejected == 2000
+    assert len([r for r in caplog.records if "rejected" in r.getMessage()]) <= 7, len(caplog.records)

@@ -35,6 +35,7 @@ import time
 VERSION = 1
 MAX_FRAME_BYTES = 1 << 20
 MAX_SKEW_S = 5.0
+LOG_REJECTED_FIRST, LOG_REJECTED_EVERY = 5, 1000
 MAX_SEQ_STEP = 1_000_000     # frames a peer may skip at once (it sends a few a minute; a TCP link loses none)
 TYPES = {"alarm", "maneuver_request", "maneuver_done", "verdict"}
 MAX_LINES_OF_SIGHT = 32
@@ -57,6 +58,7 @@ class Codec:
         self._clock = clock
         self._seq_out = 0
         self._seq_in = -1
+        self.rejected = 0
 
     def encode(self, msg_type: str, payload: dict) -> bytes:
         if msg_type not in TYPES:
@@ -74,7 +76,10 @@ class Codec:
         try:
             return self._decode(frame)
         except LinkError as e:
-            log.warning("link: rejected message: %s", e)
+            self.rejected += 1
+            # the first few, then one line per LOG_REJECTED_EVERY: a flood of forged frames is no flood of lines
+            if self.rejected <= LOG_REJECTED_FIRST or self.rejected % LOG_REJECTED_EVERY == 0:
+                log.warning("link: rejected message (%d so far): %s", self.rejected, e)
             raise
 
     def _decode(self, frame: bytes):
@@ -178,12 +183,15 @@ class LinkPeer:
         import threading
         self.sock, self.codec = sock, Codec(key)
         sock.settimeout(None)   # the reader waits as long as the peer is silent; a closed peer ends it
-        self.rejected = 0
         self.closed: str | None = None
         self._queue: queue.Queue = queue.Queue()
         self._send_lock = threading.Lock()
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
+
+    @property
+    def rejected(self) -> int:
+        return self.codec.rejected
 
     @classmethod
     def connect(cls, host: str, port: int, key: bytes, timeout_s: float = 5.0) -> LinkPeer:
@@ -206,7 +214,7 @@ class LinkPeer:
             try:
                 self._queue.put(self.codec.decode(frame))
             except LinkError:
-                self.rejected += 1
+                pass              # counted (and logged, throttled) by the codec
 
     def send(self, msg_type: str, payload: dict) -> None:
         with self._send_lock:
