@@ -148,3 +148,37 @@ def test_a_flood_of_forged_frames_is_counted_not_printed_line_by_line(caplog):
                 rx.decode(b"x" * 64)
     assert rx.rejected == 2000
     assert len([r for r in caplog.records if "rejected" in r.getMessage()]) <= 7, len(caplog.records)
+
+
+def test_a_silent_local_process_cannot_lock_the_receiver_out_of_the_flight_side(monkeypatch):
+    """Issue 23, item 1: the companion served the first connection, authenticated or not. A process that connects
+    first and stays silent (and one that talks without the key) is dropped; the real receiver is served."""
+    import threading
+
+    from semperfi.flight import companion
+    from semperfi.flight.link import LinkPeer
+    monkeypatch.setattr(companion, "HELLO_WAIT_S", 0.5)
+    srv_probe = socket.create_server(("127.0.0.1", 0))
+    port = srv_probe.getsockname()[1]
+    srv_probe.close()
+    events = []
+    done = threading.Thread(target=companion.serve, args=(port, KEY, "udpin:127.0.0.1:1", events.append),
+                            kwargs={"max_maneuvers": 0, "accept_timeout_s": 20.0}, daemon=True)
+    done.start()
+    import time
+    for _ in range(100):
+        if any(e["event"] == "listening" for e in events):
+            break
+        time.sleep(0.02)
+    squatter = socket.create_connection(("127.0.0.1", port))            # connects first, says nothing
+    forger = LinkPeer.connect("127.0.0.1", port, b"not the key, sixteen bytes+")   # says hello with a wrong key
+    time.sleep(0.1)
+    real = LinkPeer.connect("127.0.0.1", port, KEY)
+    done.join(10)
+    assert not done.is_alive()
+    refused = [e for e in events if e["event"] == "peer_refused"]
+    connected = [e for e in events if e["event"] == "receiver_connected"]
+    assert len(refused) == 2 and len(connected) == 1, events
+    assert connected[0]["address"].endswith(f":{real.sock.getsockname()[1]}"), (connected, real.sock.getsockname())
+    for end in (squatter, forger, real):
+        end.close()

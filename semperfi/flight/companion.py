@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import secrets
 import socket
+import time
 
 import numpy as np
 
@@ -20,6 +21,7 @@ from .maneuver import ManeuverLimits, draw, spread_m, unit_ned
 from .mavlink_pilot import Pilot, PilotError
 
 VERDICT_WAIT_S = 120.0
+HELLO_WAIT_S = 5.0     # a connection must say an authenticated hello this soon, or it is dropped
 
 
 def serve(port: int, key: bytes, vehicle_url: str, report, host: str = "127.0.0.1", max_maneuvers: int = 1,
@@ -30,17 +32,13 @@ def serve(port: int, key: bytes, vehicle_url: str, report, host: str = "127.0.0.
     srv = socket.socket()
     srv.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     srv.bind((host, port))
-    srv.listen(1)
-    srv.settimeout(accept_timeout_s)
+    srv.listen(4)
     report({"event": "listening", "port": port})
     try:
-        conn, address = srv.accept()
-    except (socket.timeout, TimeoutError):
-        raise LinkError(f"no receiver connected within {accept_timeout_s:g} s") from None
+        peer, address = _authenticated(srv, key, accept_timeout_s, report)
     finally:
         srv.close()
-    peer = LinkPeer(conn, key)
-    report({"event": "receiver_connected", "address": f"{address[0]}:{address[1]}"})
+    report({"event": "receiver_connected", "address": address})
     flown = 0
     try:
         while flown < max_maneuvers and peer.closed is None:
@@ -81,6 +79,29 @@ def serve(port: int, key: bytes, vehicle_url: str, report, host: str = "127.0.0.
             report({"event": "verdict", "payload": verdict})
     finally:
         peer.close()
+
+
+def _authenticated(srv: socket.socket, key: bytes, timeout_s: float, report) -> tuple[LinkPeer, str]:
+    """The first connection that says an authenticated hello within HELLO_WAIT_S; one that does not (silent, or
+    without the key) is dropped and the next one is heard: a local process cannot hold the slot without the key."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        left = deadline - time.monotonic()
+        if left <= 0:
+            raise LinkError(f"no receiver connected within {timeout_s:g} s")
+        srv.settimeout(left)
+        try:
+            conn, address = srv.accept()
+        except (socket.timeout, TimeoutError):
+            raise LinkError(f"no receiver connected within {timeout_s:g} s") from None
+        where = f"{address[0]}:{address[1]}"
+        peer = LinkPeer(conn, key)
+        hello = peer.wait(min(HELLO_WAIT_S, max(deadline - time.monotonic(), 0.0)))
+        if hello is not None and hello[0] == "hello":
+            return peer, where
+        peer.close()
+        report({"event": "peer_refused", "address": where,
+                "reason": "no authenticated hello" if hello is None else f"{hello[0]} before hello"})
 
 
 def _spreads(maneuver, prns, lines_of_sight, required_m: float) -> dict:

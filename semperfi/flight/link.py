@@ -7,6 +7,8 @@ Schema, version 1.  Each frame on the wire:
     body     = UTF-8 JSON object {"v": 1, "type": T, "seq": int, "ts": float (UNIX s), "payload": {...}}
 
 Types, in the order of one identification round:
+    "hello"             receiver -> flight  {}   (at once on connecting: the flight side drops a connection that
+                                             has not said it, authenticated, within a few seconds)
     "alarm"             receiver -> flight  {"reason": str, "t_s": float, "lines_of_sight": [{"prn": int,
                                              "az_deg": float, "el_deg": float}, ...]}   (the PRNs whose peaks the
                                              maneuver is to decide, seen from the receiver's last fix; at most 32,
@@ -37,7 +39,7 @@ MAX_FRAME_BYTES = 1 << 20
 MAX_SKEW_S = 5.0
 LOG_REJECTED_FIRST, LOG_REJECTED_EVERY = 5, 1000
 MAX_SEQ_STEP = 1_000_000     # frames a peer may skip at once (it sends a few a minute; a TCP link loses none)
-TYPES = {"alarm", "maneuver_request", "maneuver_done", "verdict"}
+TYPES = {"hello", "alarm", "maneuver_request", "maneuver_done", "verdict"}
 MAX_LINES_OF_SIGHT = 32
 MAX_REQUIRED_SPREAD_M = 50.0   # a maneuver under 50 m flown cannot spread further along a line of sight
 _MAC = 32
@@ -195,11 +197,15 @@ class LinkPeer:
 
     @classmethod
     def connect(cls, host: str, port: int, key: bytes, timeout_s: float = 5.0) -> LinkPeer:
+        """The receiver's end: connects, and says an authenticated hello at once (the flight side serves no
+        connection that has not)."""
         try:
             sock = socket.create_connection((host, int(port)), timeout=timeout_s)
         except OSError as exc:
             raise LinkError(f"cannot reach the link at {host}:{port}: {exc.strerror or exc}") from None
-        return cls(sock, key)
+        peer = cls(sock, key)
+        peer.send("hello", {})
+        return peer
 
     def _read(self) -> None:
         while self.closed is None:
