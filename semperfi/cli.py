@@ -34,6 +34,7 @@ def _tune_heap() -> None:
         mallopt(m_arena_max, 1)
 
 
+INTERRUPTED_EXIT = 130   # the shell's code for a run stopped by Ctrl-C (128 + SIGINT)
 FORMAT_HELP = ("ibyte | ishort | gr_complex | byte | short (real, with --if) | packed real2 iq2 real2sm iq2sm real4 "
                "iq4 | a SigMF datatype (else from the SigMF sidecar)")
 
@@ -279,6 +280,9 @@ def _fail_after(summary) -> None:
         sys.exit(InternalError.exit_code)
     if summary.input_error:
         _fail(f"input failed after {summary.duration_s:.1f} s (outputs kept): {summary.input_error}")
+    if summary.interrupted:
+        click.echo(f"semperfi: interrupted after {summary.duration_s:.1f} s of input (outputs kept)", err=True)
+        sys.exit(INTERRUPTED_EXIT)
 
 
 def _read_key(path) -> bytes:

@@ -169,6 +169,37 @@ def test_a_stalled_standard_input_is_lost_with_one_line_not_a_hang(assisted):
     assert len(lost) == 1 and lost[0]["t_rx_s"] == pytest.approx(16.0, abs=0.11)
 
 
+def test_an_interrupted_run_keeps_its_outputs_and_exits_130(assisted):
+    """Issue 23, item 6: Ctrl-C mid-run exited 0 (and during acquisition said "no satellite signal")."""
+    import signal
+    import time
+    d, nav = assisted
+    with open(d / "int.err", "wb") as stderr:
+        proc = subprocess.Popen([sys.executable, "-m", "semperfi.cli", "run", str(d / "a.bin"), "--nav", str(nav),
+                                 "--out", str(d / "interrupted"), "--defense", "off"],
+                                stdout=subprocess.DEVNULL, stderr=stderr)
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and not (d / "interrupted" / "events.jsonl").is_file():
+            time.sleep(0.1)
+        time.sleep(2.0)
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=60)
+        finally:
+            proc.kill()
+    err = (d / "int.err").read_text()
+    assert proc.returncode == 130 and err.strip().count("\n") == 0 and "interrupted" in err, (proc.returncode, err)
+    assert [e for e in _events(d / "interrupted") if e["event"] == "interrupted"]
+
+
+@pytest.mark.parametrize("if_hz", [1.0e6, -1.2e6, 5e6])
+def test_an_if_outside_the_complex_band_is_refused_at_once(if_hz):
+    """Issue 23, item 6: it failed 15 s later as "no satellite"."""
+    import io
+    with pytest.raises(ValueError, match="fs/2"):
+        SampleSource("-", "ishort", FS, if_hz, stdin=io.BytesIO(bytes(4000)))
+
+
 def test_a_pipe_that_stays_silent_is_a_source_error_after_what_arrived():
     r, w = os.pipe()
     os.write(w, np.zeros(4000, dtype=np.int16).tobytes())

@@ -25,6 +25,7 @@ class CleanSummary:
     clipped_fraction: float
     input_error: str | None = None
     internal_error: str | None = None
+    interrupted: bool = False          # Ctrl-C: what was cleaned before it is written
 
 
 def clean_file(in_path, out_path, fmt, fs_hz, if_hz, cfg: dict, events_path=None, progress: bool = False,
@@ -41,6 +42,7 @@ def clean_file(in_path, out_path, fmt, fs_hz, if_hz, cfg: dict, events_path=None
     events_path = Path(events_path) if events_path else out_path.with_suffix(".events.jsonl")
     t0 = time.perf_counter()
     input_error = internal_error = None
+    interrupted = False
     with EventLog(events_path) as events, IqWriter(
             out_path, _output_format(source), source.fs_hz, if_hz=source.if_hz,
             metadata={"cleaned_from": source.name, "configuration": config.dumps_toml(cfg),
@@ -57,6 +59,9 @@ def clean_file(in_path, out_path, fmt, fs_hz, if_hz, cfg: dict, events_path=None
         try:
             for chunk in chunks:
                 writer.write(guard.push(chunk))
+        except KeyboardInterrupt:
+            interrupted = True
+            events.emit("interrupted", source.n_samples / source.fs_hz)
         except SourceError as exc:
             input_error = str(exc)
             events.emit("input_lost", source.n_samples / source.fs_hz, error=input_error)
@@ -73,7 +78,7 @@ def clean_file(in_path, out_path, fmt, fs_hz, if_hz, cfg: dict, events_path=None
     return CleanSummary(out_path, source.n_samples / source.fs_hz, time.perf_counter() - t0,
                         tuple(sorted(guard.alarmed_prns)), tuple(sorted(guard.cancel_started)),
                         tuple(sorted(guard.verified)), dict(guard.gave_up), guard.canceller.report(), clipped,
-                        input_error, internal_error)
+                        input_error, internal_error, interrupted)
 
 
 def _output_format(source):

@@ -147,6 +147,9 @@ class SampleSource:
             self.fmt, self.fs_in_hz, self.if_in_hz = reader.fmt, reader.fs_hz, reader.if_hz
             self.sidecar, self.truncated_bytes = reader.sidecar, reader.truncated_bytes
             self._input, self.n_available = _FileInput(reader), reader.n_samples
+        if self.fmt.is_complex and not abs(self.if_in_hz) < self.fs_in_hz / 2:
+            raise ValueError(f"complex samples hold frequencies within +-fs/2 ({self.fs_in_hz / 2:g} Hz): --if "
+                             f"{self.if_in_hz:g} Hz lies outside")
         if not self.fmt.is_complex and not 0 < abs(self.if_in_hz) < self.fs_in_hz / 2:
             raise ValueError(f"real-valued samples ({self.fmt.name}) need --if between 0 and fs/2 "
                              f"({self.fs_in_hz / 2:g} Hz), got {self.if_in_hz:g} Hz")

@@ -32,6 +32,7 @@ class RunSummary:
     out_dir: Path
     input_error: str | None = None   # the input failed part-way (closed, stalled): what came before is processed
     internal_error: str | None = None   # a bug stopped the run: what came before is written, the event says where
+    interrupted: bool = False           # Ctrl-C: what came before is written
 
 
 def _live_table(receiver: Receiver, t_s: float, total_s: float | None = None):
@@ -62,6 +63,7 @@ def run_file(path: str | Path, fmt: str | None, fs_hz: float | None, if_hz: floa
     write_config(out_dir, config.dumps_toml(cfg))
     t0 = time.perf_counter()
     input_error = internal_error = None
+    interrupted = False
     total_s = None if source.expected_samples is None else source.expected_samples / source.fs_hz
     with OutputWriter(out_dir, cfg["output"]["formats"]) as out:
         receiver = receiver_factory(cfg, source.fs_hz, source.if_hz, assisted, on_fix=out.write, events=out,
@@ -90,6 +92,7 @@ def run_file(path: str | Path, fmt: str | None, fs_hz: float | None, if_hz: floa
                     live_ctx.update(_live_table(receiver, receiver.stats.samples / source.fs_hz, total_s))
                     last_draw = now
         except KeyboardInterrupt:
+            interrupted = True
             out.emit("interrupted", receiver.stats.samples / source.fs_hz)
         except SourceError as exc:   # keep everything computed; the caller reports the failure after the summary
             input_error = str(exc)
@@ -109,8 +112,9 @@ def run_file(path: str | Path, fmt: str | None, fs_hz: float | None, if_hz: floa
                 live_ctx.update(_live_table(receiver, receiver.stats.samples / source.fs_hz, total_s))
                 live_ctx.stop()
     summary = RunSummary(receiver.stats, receiver.last_fix, source.n_samples / source.fs_hz,
-                         time.perf_counter() - t0, source.truncated_bytes, out_dir, input_error, internal_error)
-    if not receiver.stats.confirmed and input_error is None and internal_error is None:
+                         time.perf_counter() - t0, source.truncated_bytes, out_dir, input_error, internal_error,
+                         interrupted)
+    if not receiver.stats.confirmed and input_error is None and internal_error is None and not interrupted:
         raise NoSignal(f"no satellite signal could be tracked in {source.name}: check --fs ({source.fs_in_hz:g} Hz), "
                        f"--format ({source.fmt.name}) and --if ({source.if_in_hz:g} Hz); outputs in {out_dir}")
     return summary
