@@ -1,6 +1,7 @@
 """The `semperfi` command."""
 
 import sys
+import warnings
 
 import click
 
@@ -80,6 +81,9 @@ class _OneLineGroup(click.Group):
 def main() -> None:
     """SemperFi: a spoofer-eliminating GPS L1 C/A receiver, and the world it is proven against."""
     _tune_heap()
+    # numpy's floating-point RuntimeWarnings (all-zero or full-scale samples, a degenerate rate) are no message for a
+    # user: what they lead to is reported in words (no signal, clipping, an event); the tests still see them
+    warnings.simplefilter("ignore", RuntimeWarning)
 
 
 @main.command()

@@ -79,3 +79,11 @@ def test_acquire_values_out_of_range_are_one_line_before_any_work(tmp_path, args
     r = semperfi("acquire", str(tmp_path / "x.bin"), "--fs", "2e6", "--format", "ishort", *args)
     assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and word in r.stderr, (r.returncode, r.stderr)
     assert "Traceback" not in r.stderr
+
+
+def test_all_zero_samples_are_one_line_without_numpy_warnings(tmp_path):
+    """Issue 23, item 6: RuntimeWarnings leaked on all-zero samples."""
+    (tmp_path / "zeros.bin").write_bytes(bytes(400_000))
+    r = semperfi("acquire", str(tmp_path / "zeros.bin"), "--fs", "2e6", "--format", "ishort")
+    one_line_error(r, "no satellite")
+    assert "Warning" not in r.stderr and "Warning" not in r.stdout
