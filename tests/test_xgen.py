@@ -320,3 +320,17 @@ def test_a_time_push_aligned_from_the_first_sample_keeps_the_fix_from_the_clean_
     assert clock and 20.0 < clock[0]["t_rx_s"] < 21.0, clock[:1]
     assert not [e for e in events if e["event"] == "loss_of_lock" and e["prn"] in clock[0]["prns"]
                 and 20.0 < e["t_rx_s"] < 22.0], "a channel lost at the carrier step"
+
+
+def test_a_far_stronger_attacker_whose_weak_twins_hide_in_the_residues_is_not_taken_as_aligned(tmp_path, brdc_path):
+    """+20 dB, 500 m east, the scene starting 4 min 7 s into the day (subframe 2): after the power cancellations the
+    weakest legitimate twins stand 2.6 detection thresholds above the floor the residues raise. Taken for "nothing
+    left" (aligned, merged), their cancellations were dropped and the attacker's ranges came back: 0 % availability.
+    They are signals: every epoch from the clean TTFF has a true fix, none called good while wrong."""
+    from semperfi.eval.grid import Cell, run_cell
+    cell = Cell("static", "boston", "2022/01/01,00:04:07", 500.0, 20.0, 30.0)
+    clean, attacked = run_cell(cell, brdc_path, tmp_path, clean_until_first_fix=True)
+    print(attacked)
+    assert attacked["crash"] is False and attacked["error"] is None, attacked
+    assert attacked["availability"] >= 0.95 and attacked["longest_gap_s"] <= 3.0, attacked
+    assert attacked["good_but_wrong"] == attacked["good_beyond_hpl"] == attacked["good_beyond_vpl"] == 0, attacked
