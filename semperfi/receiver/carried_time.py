@@ -26,6 +26,10 @@ class Donor:
     t_sv_s: float
     doppler_hz: float
 
+    def reaches(self, sample: float, fs_hz: float) -> bool:
+        """Whether its time may still be carried to this absolute sample (DONOR_REACH_S)."""
+        return abs(sample - self.epoch_sample) <= DONOR_REACH_S * fs_hz
+
 
 def donor(channel: Channel, decoder: NavDecoder | None) -> Donor | None:
     """What a channel that read its own time (bit sync and a HOW) hands on; None when it had none."""
@@ -44,7 +48,7 @@ def carried(channel: Channel, given: Donor) -> tuple[int, float] | None:
         return None
     ms = channel.ms - 2
     epoch = float(channel.epoch_sample[ms % channel.HISTORY_MS])
-    if abs(epoch - given.epoch_sample) > DONOR_REACH_S * channel.fs_hz:
+    if not given.reaches(epoch, channel.fs_hz):
         return None
     t_sv = given.t_sv_s + (epoch - given.epoch_sample) / channel.fs_hz * (1.0 + given.doppler_hz / L1_HZ)
     return ms, round(t_sv / CA_CODE_PERIOD_S) * CA_CODE_PERIOD_S % SECONDS_PER_WEEK

@@ -12,7 +12,7 @@ from ..gps.geometry import light_time_range
 from ..gps.constants import L1_WAVELENGTH_M, SECONDS_PER_WEEK, SPEED_OF_LIGHT_M_S
 from ..gps.time import GpsTime, wrap_week_s
 from .acquisition import Caf, DopplerGrid, acquire, is_cross_correlation
-from .carried_time import DONOR_REACH_S, Donor, carried, donor
+from .carried_time import Donor, carried, donor
 from .navigation import ASSIST_MAX_AGE_S, AssistedNav, NavDecoder
 from .pvt import solve
 from .rinex_obs import ObsEpoch
@@ -104,11 +104,11 @@ class Receiver:
         # ephemerides decoded on a PRN's earlier channels (a spoofer's peak, in a stealthy attack the same data),
         # used until the PRN's own decoder has one: a replaced channel must not wait 30 s for subframes 1-3
         self.provisional_ephemerides: dict[int, object] = {}
-        self._retired: dict[int, NavDecoder] = {}
+        self._retired: dict[int, NavDecoder] = {}   # the last decoder of a PRN whose channel went, for the next one
         # PRN -> the time a channel that went had read, for the PRN's next channel (receiver/carried_time); and the
         # (channel, code period, its transmit time) that next channel took from it
         self._donors: dict[int, Donor] = {}
-        self._carried: dict[int, tuple[Channel, int, float]] = {}   # the last decoder of a PRN whose channel went, for the next one
+        self._carried: dict[int, tuple[Channel, int, float]] = {}
 
     # -- events ---------------------------------------------------------------------------------------------
     def _emit(self, kind: str, t_rx_s: float, **fields) -> None:
@@ -172,8 +172,7 @@ class Receiver:
         if end >= self._next_acq_sample and self._buf.size >= self.acq_samples:
             self._acquire()
             every_s = self.cfg["acquisition"]["reacquire_s"]
-            if any(self._donors.get(prn) is not None and end - self._donors[prn].epoch_sample
-                   < DONOR_REACH_S * self.fs_hz for prn in self.warm):
+            if any(prn in self._donors and self._donors[prn].reaches(end, self.fs_hz) for prn in self.warm):
                 # a PRN lost moments ago whose time its next channel could still take: searched again soon
                 every_s = min(every_s, WARM_RETRY_S)
             self._next_acq_sample = end + int(every_s * self.fs_hz)
@@ -193,7 +192,7 @@ class Receiver:
                 self.warm[prn] = ch.doppler_at(0)
                 del self.channels[prn]
                 self._retire(prn, self.decoders.pop(prn, None), ch)
-                self._next_acq_sample = min(self._next_acq_sample, end + self.acq_samples)
+                self.search_from(end)
         self._measure()
         keep = max(2 * self.samples_per_ms + 2, self.acq_samples)
         if self._buf.size > keep:
@@ -418,23 +417,23 @@ class Receiver:
         if anchor is None:
             return None
         del self._donors[prn]
-        if not self._agrees_with_clock(prn, ch, anchor):
+        sample = float(ch.epoch_sample[anchor[0] % ch.HISTORY_MS])   # the code epoch the time was carried to
+        if not self._agrees_with_clock(prn, sample, anchor[1]):
             return None
         self._carried[prn] = (ch, *anchor)
-        self._emit("time_inherited", ch.epoch_sample[anchor[0] % ch.HISTORY_MS] / self.fs_hz, prn=prn,
-                   gap_s=round((ch.epoch_sample[anchor[0] % ch.HISTORY_MS] - given.epoch_sample) / self.fs_hz, 3))
+        self._emit("time_inherited", sample / self.fs_hz, prn=prn,
+                   gap_s=round((sample - given.epoch_sample) / self.fs_hz, 3))
         return anchor
 
-    def _agrees_with_clock(self, prn: int, ch: Channel, anchor: tuple[int, float]) -> bool:
+    def _agrees_with_clock(self, prn: int, sample: float, t_sv_s: float) -> bool:
         """Whether a carried time lies within half a code period of what the last fix's clock predicts (true without a
         fix or an ephemeris: nothing to check against); a whole millisecond away, an event, and it is not taken."""
-        eph = self._ephemeris(prn, anchor[1])
-        sample = float(ch.epoch_sample[anchor[0] % ch.HISTORY_MS])
+        eph = self._ephemeris(prn, t_sv_s)
         predicted = self.predicted_transmit_time(eph, sample) if eph is not None else None
-        if predicted is None or abs(wrap_week_s(predicted - anchor[1])) < 5e-4:
+        if predicted is None or abs(wrap_week_s(predicted - t_sv_s)) < 5e-4:
             return True
         self._emit("time_inheritance_refused", sample / self.fs_hz, prn=prn,
-                   off_ms=round(wrap_week_s(predicted - anchor[1]) * 1e3, 3))
+                   off_ms=round(wrap_week_s(predicted - t_sv_s) * 1e3, 3))
         return False
 
     def predicted_transmit_time(self, eph, sample: float, fix: Fix | None = None,
