@@ -170,23 +170,28 @@ def test_a_stalled_standard_input_is_lost_with_one_line_not_a_hang(assisted):
 
 
 def test_an_interrupted_run_keeps_its_outputs_and_exits_130(assisted):
-    """Issue 23, item 6: Ctrl-C mid-run exited 0 (and during acquisition said "no satellite signal")."""
+    """Issue 23, item 6: Ctrl-C mid-run exited 0 (and during acquisition said "no satellite signal"). The samples come
+    through a pipe that stays open, so the signal always lands mid-run: while the receiver waits for more."""
     import signal
     import time
     d, nav = assisted
+    data = (d / "a.bin").read_bytes()[:int(5.0 * FS) * 2]
     with open(d / "int.err", "wb") as stderr:
-        proc = subprocess.Popen([sys.executable, "-m", "semperfi.cli", "run", str(d / "a.bin"), "--nav", str(nav),
-                                 "--out", str(d / "interrupted"), "--defense", "off"],
-                                stdout=subprocess.DEVNULL, stderr=stderr)
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and not (d / "interrupted" / "events.jsonl").is_file():
-            time.sleep(0.1)
-        time.sleep(2.0)
-        proc.send_signal(signal.SIGINT)
+        proc = subprocess.Popen([sys.executable, "-m", "semperfi.cli", "run", "-", "--fs", str(FS), "--format",
+                                 "ibyte", "--nav", str(nav), "--out", str(d / "interrupted"), "--defense", "off"],
+                                stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=stderr)
         try:
+            proc.stdin.write(data)
+            proc.stdin.flush()
+            events = d / "interrupted" / "events.jsonl"
+            deadline = time.monotonic() + 120      # until the receiver has acquired: it is running
+            while time.monotonic() < deadline and not (events.is_file() and "tracking_start" in events.read_text()):
+                time.sleep(0.1)
+            proc.send_signal(signal.SIGINT)
             proc.wait(timeout=60)
         finally:
             proc.kill()
+            proc.stdin.close()
     err = (d / "int.err").read_text()
     assert proc.returncode == 130 and err.strip().count("\n") == 0 and "interrupted" in err, (proc.returncode, err)
     assert [e for e in _events(d / "interrupted") if e["event"] == "interrupted"]
