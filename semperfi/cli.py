@@ -6,12 +6,14 @@ import warnings
 import click
 
 from . import __version__
+from .errors import (EXIT_BAD_INPUT, EXIT_INPUT_LOST, EXIT_INPUT_SHORT, EXIT_INTERNAL, EXIT_INTERRUPTED,
+                     EXIT_NO_SIGNAL)
 
 
-def _fail(message: str) -> None:
-    """A user's mistake: one line on stderr and a non-zero exit."""
+def _fail(message: str, code: int = EXIT_BAD_INPUT) -> None:
+    """A user's mistake (or what the input turned out to be): one line on stderr and a non-zero exit."""
     click.echo(f"semperfi: error: {message}", err=True)
-    sys.exit(2)
+    sys.exit(code)
 
 
 def _tune_heap() -> None:
@@ -35,7 +37,6 @@ def _tune_heap() -> None:
         mallopt(m_arena_max, 1)
 
 
-INTERRUPTED_EXIT = 130   # the shell's code for a run stopped by Ctrl-C (128 + SIGINT)
 FORMAT_HELP = ("ibyte | ishort | gr_complex | byte | short (real, with --if) | packed real2 iq2 real2sm iq2sm real4 "
                "iq4 | a SigMF datatype (else from the SigMF sidecar)")
 
@@ -58,7 +59,7 @@ class _OneLineGroup(click.Group):
     what went wrong (its own code), a bug is an internal error (70)."""
 
     def invoke(self, ctx):
-        from .errors import InternalError, SemperFiError, describe
+        from .errors import SemperFiError, describe
         try:
             return super().invoke(ctx)
         except click.exceptions.UsageError as exc:   # a mistyped option or value: one line, not click's usage block
@@ -70,10 +71,13 @@ class _OneLineGroup(click.Group):
         except SemperFiError as exc:
             click.echo(f"semperfi: error: {exc}", err=True)
             sys.exit(exc.exit_code)
+        except KeyboardInterrupt:   # Ctrl-C where no command keeps partial outputs (run and clean do, and say so)
+            click.echo("semperfi: interrupted", err=True)
+            sys.exit(EXIT_INTERRUPTED)
         except Exception as exc:
             what = describe(exc)
             click.echo(f"semperfi: internal error: {what['error']} (at {what['where']})", err=True)
-            sys.exit(InternalError.exit_code)
+            sys.exit(EXIT_INTERNAL)
 
 
 @click.group(cls=_OneLineGroup)
@@ -109,7 +113,7 @@ def sim(scenario, out_path, fmt, fs_hz, if_hz, duration_s, sets) -> None:
         cfg = load_scenario(scenario, sets)
         summary = simulate_to_file(cfg, out_path, progress=sys.stderr.isatty())
     except (ValueError, OSError) as exc:
-        _fail(str(exc))
+        _fail(str(exc), getattr(exc, "exit_code", EXIT_BAD_INPUT))
     click.echo(f"wrote {summary.out_path} ({summary.fmt}, {summary.fs_hz / 1e6:g} MSa/s, {summary.duration_s:g} s, "
                f"start {summary.start_utc})")
     click.echo(f"  legitimate PRNs: {' '.join(map(str, summary.legit_prns))}")
@@ -119,6 +123,19 @@ def sim(scenario, out_path, fmt, fs_hz, if_hz, duration_s, sets) -> None:
                    f"({a['mode']}, {a['power_advantage_db']:+g} dB, from t = {a['start_s']:g} s)")
     if summary.clipped_fraction > 1e-4:
         click.echo(f"  warning: {100 * summary.clipped_fraction:.3f} % of samples clipped", err=True)
+
+
+def _output_folder(path) -> None:
+    """Make the folder an output file goes into before any work is done (a missing one must not cost a flight)."""
+    import os
+    from pathlib import Path
+    folder = Path(path).parent
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        _fail(f"cannot write {path}: {exc.strerror or exc}")
+    if not os.access(folder, os.W_OK):
+        _fail(f"cannot write {path}: {folder} is not writable")
 
 
 def _parse_prns(text: str) -> list[int]:
@@ -159,6 +176,8 @@ def acquire(file, fs_hz, fmt, iq_swap, if_hz, prn_text, start_s, coherent_ms, no
     from .receiver.acquisition import DopplerGrid, acquire as run_acquisition
 
     prns = _parse_prns(prn_text)
+    if plot_path:
+        _output_folder(plot_path)
     if 0.0 < doppler_step_hz < 1.0:
         _fail(f"--doppler-step wants 0 (the default grid) or 1 Hz or more; got {doppler_step_hz:g}")
     try:
@@ -173,6 +192,9 @@ def acquire(file, fs_hz, fmt, iq_swap, if_hz, prn_text, start_s, coherent_ms, no
                                tail_threshold=True)
     except ValueError as exc:
         _fail(str(exc))
+    interference = next(iter(cafs.values())).interference
+    if interference.present:
+        click.echo(f"warning: {interference.describe()}", err=True)
     click.echo(f"{'PRN':>3}  {'code phase':>11}  {'Doppler':>9}  {'C/N0':>6}  {'ratio':>6}  {'2nd':>5}  peaks")
     found = 0
     for prn, caf in cafs.items():
@@ -182,12 +204,14 @@ def acquire(file, fs_hz, fmt, iq_swap, if_hz, prn_text, start_s, coherent_ms, no
         b = caf.best
         click.echo(f"{prn:>3}  {b.code_phase_chips:>7.3f} ch  {b.doppler_hz:>6.0f} Hz  {b.cn0_dbhz:>6.1f}  "
                    f"{caf.peak_ratio:>6.1f}  {caf.second_peak_ratio:>5.2f}  {len(caf.peaks)}")
-    if plot_path:
+    if plot_path and found:
         from .receiver.plots import plot_cafs
         plot_cafs([c for c in cafs.values() if c.best], plot_path)
+    if not found and interference.present:
+        _fail(f"no satellite acquired in {file} under its {interference.describe()}", EXIT_NO_SIGNAL)
     if not found:
         _fail(f"no satellite acquired in {file}: check --fs ({source.fs_hz:g} Hz), --format ({source.fmt.name}) "
-              f"and --if ({source.if_hz:g} Hz), and that the file holds GPS L1 signals")
+              f"and --if ({source.if_hz:g} Hz), and that the file holds GPS L1 signals", EXIT_NO_SIGNAL)
 
 
 @main.command()
@@ -234,7 +258,7 @@ def run(file, fs_hz, fmt, iq_swap, if_hz, nav_path, out_dir, config_path, defens
             if link is not None:
                 link.close()
     except (ValueError, OSError) as exc:
-        _fail(str(exc))
+        _fail(str(exc), getattr(exc, "exit_code", EXIT_BAD_INPUT))
     _print_run_summary(summary)
     _fail_after(summary)
 
@@ -263,7 +287,7 @@ def clean(file, out_path, fs_hz, fmt, iq_swap, if_hz, adversarial, config_path, 
         s = clean_file(file, out_path, _sample_format(fmt, iq_swap), fs_hz, if_hz, cfg, progress=sys.stderr.isatty(),
                        skip_s=skip_s, duration_s=duration_s, fs_out_hz=fs_out_hz)
     except (ValueError, OSError) as exc:
-        _fail(str(exc))
+        _fail(str(exc), getattr(exc, "exit_code", EXIT_BAD_INPUT))
     click.echo(f"cleaned {s.duration_s:.1f} s in {s.wall_s:.1f} s into {s.out_path}")
     click.echo(f"  alarms on PRNs {' '.join(map(str, s.alarms)) or 'none'}; cancelled {' '.join(map(str, s.cancelled)) or 'none'}; "
                f"verified clean {' '.join(map(str, s.verified)) or 'none'}")
@@ -272,21 +296,35 @@ def clean(file, out_path, fs_hz, fmt, iq_swap, if_hz, adversarial, config_path, 
         click.echo(f"  PRN {prn:>2}: attenuation {', '.join(map(str, last)) or 'not yet measured'} dB (per SIC stage)")
     if s.gave_up:
         click.echo(f"  gave up on: {s.gave_up}", err=True)
+    if s.interference:
+        click.echo(f"  warning: {s.interference} (left in the output)", err=True)
+    if not s.satellites and not (s.internal_error or s.input_error or s.interrupted):
+        what = f"under its {s.interference}" if s.interference else \
+            "check --fs, --format and --if, and that it holds GPS L1 signals"
+        _fail(f"no satellite signal found in {file} ({s.out_path} is written, uncleaned): {what}", EXIT_NO_SIGNAL)
     _fail_after(s)
 
 
 def _fail_after(summary) -> None:
-    """A run or clean that stopped part-way: one line, and the exit code that says why (outputs are kept)."""
-    from .errors import InternalError
+    """A run or clean that stopped part-way or ran short: one line, and the exit code that says why (outputs are
+    kept)."""
     if summary.internal_error:
         click.echo(f"semperfi: internal error after {summary.duration_s:.1f} s of input (outputs kept, the event in "
                    f"the event log): {summary.internal_error}", err=True)
-        sys.exit(InternalError.exit_code)
+        sys.exit(EXIT_INTERNAL)
     if summary.input_error:
-        _fail(f"input failed after {summary.duration_s:.1f} s (outputs kept): {summary.input_error}")
+        _fail(f"input failed after {summary.duration_s:.1f} s (outputs kept): {summary.input_error}", EXIT_INPUT_LOST)
     if summary.interrupted:
         click.echo(f"semperfi: interrupted after {summary.duration_s:.1f} s of input (outputs kept)", err=True)
-        sys.exit(INTERRUPTED_EXIT)
+        sys.exit(EXIT_INTERRUPTED)
+    short = []
+    if summary.missing_s > 0:
+        short.append(f"the input ended {summary.missing_s:.3f} s before the --duration asked for")
+    if summary.truncated_bytes:
+        short.append(f"the input ends mid-sample ({summary.truncated_bytes} trailing bytes ignored)")
+    if short:
+        click.echo(f"semperfi: warning: {'; '.join(short)}: all of it was processed (outputs complete)", err=True)
+        sys.exit(EXIT_INPUT_SHORT)
 
 
 def _read_key(path) -> bytes:
@@ -353,8 +391,6 @@ def _print_run_summary(summary) -> None:
         f = summary.last_fix
         click.echo(f"  {s.n_fixes} fixes, first at t = {s.first_fix_t_rx_s:.1f} s; last: {f.lat_deg:.7f} "
                    f"{f.lon_deg:.7f} {f.height_m:.1f} m, {f.n_sats} satellites, PDOP {f.pdop:.1f}")
-    if summary.truncated_bytes:
-        click.echo(f"  note: the file ends mid-sample ({summary.truncated_bytes} trailing bytes ignored)", err=True)
     click.echo(f"  outputs: {summary.out_dir}")
 
 
@@ -398,8 +434,14 @@ def fly(url, out_path, heading_deg, timeout_s) -> None:
 
     from .flight.deadreckoning import write_track_csv
     from .flight.maneuver import ManeuverLimits, draw
-    from .flight.mavlink_pilot import Pilot, PilotError
+    from .flight.mavlink_pilot import Pilot, PilotError, check_vehicle_url
 
+    try:
+        check_vehicle_url(url)
+    except ValueError as exc:
+        _fail(str(exc))
+    if out_path:
+        _output_folder(out_path)
     maneuver = draw(ManeuverLimits(), track_heading_rad=math.radians(heading_deg))
     click.echo(f"maneuver: {len(maneuver.legs)} legs, {maneuver.duration_s:.1f} s, {maneuver.path_length_m:.1f} m "
                f"flown, ends {maneuver.end_distance_m:.1f} m from its start")
@@ -433,12 +475,14 @@ def companion(port, link_key_path, url, maneuvers, test_seed) -> None:
 
     from .flight.companion import serve
     from .flight.link import LinkError
+    from .flight.mavlink_pilot import check_vehicle_url
 
     def report(event: dict) -> None:
         click.echo(json.dumps(event, separators=(",", ":")))
         sys.stdout.flush()
 
     try:
+        check_vehicle_url(url)
         serve(port, _read_key(link_key_path), url, report, max_maneuvers=maneuvers,
               rng=random.Random(test_seed) if test_seed is not None else None)
     except (LinkError, ValueError, OSError) as exc:
@@ -463,7 +507,7 @@ def world(scenario, mavlink_port, truth_path, altitude_m, seed, tee_path, sets) 
         run_world(cfg, sys.stdout.buffer, mavlink_port, truth_path, seed=seed, altitude_m=altitude_m,
                   tee_path=tee_path)
     except (ValueError, OSError) as exc:
-        _fail(str(exc))
+        _fail(str(exc), getattr(exc, "exit_code", EXIT_BAD_INPUT))
 
 
 @main.command()
@@ -478,7 +522,7 @@ def demo(out_dir, duration_s, sets) -> None:
         for line in run_demo(out_dir, duration_s, list(sets), progress=sys.stderr.isatty()):
             click.echo(line)
     except (ValueError, OSError) as exc:
-        _fail(str(exc))
+        _fail(str(exc), getattr(exc, "exit_code", EXIT_BAD_INPUT))
 
 
 if __name__ == "__main__":

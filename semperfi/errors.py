@@ -3,16 +3,31 @@
 import traceback
 
 
+# What every command's exit code says (README, "Exit codes"): the one table of them.
+EXIT_BAD_INPUT = 2     # a user's mistake or an input that cannot be read: one line says which
+EXIT_NO_SIGNAL = 3     # the input was read but held no GPS signal to track (a wrong --fs/--format/--if, or jamming)
+EXIT_INPUT_SHORT = 4   # the input ended before the window asked for, or mid-sample: all of it was processed
+EXIT_INPUT_LOST = 5    # the input stalled or closed part-way: what came before is processed and written
+EXIT_INTERNAL = 70     # EX_SOFTWARE (sysexits.h): a bug; outputs kept, the event log says where
+EXIT_INTERRUPTED = 130   # the shell's code for a run stopped by Ctrl-C (128 + SIGINT)
+
+
 class SemperFiError(Exception):
     """Anything SemperFi reports to its user as one line."""
 
-    exit_code = 2
+    exit_code = EXIT_BAD_INPUT
+
+
+class NoSignal(SemperFiError, ValueError):
+    """Nothing could be tracked: almost always a wrong sample rate, format or IF, else interference."""
+
+    exit_code = EXIT_NO_SIGNAL
 
 
 class InternalError(SemperFiError):
     """A bug met while processing: the outputs written so far are kept, the event log says where."""
 
-    exit_code = 70   # EX_SOFTWARE (sysexits.h)
+    exit_code = EXIT_INTERNAL
 
 
 def describe(exc: BaseException) -> dict:

@@ -87,3 +87,54 @@ def test_all_zero_samples_are_one_line_without_numpy_warnings(tmp_path):
     r = semperfi("acquire", str(tmp_path / "zeros.bin"), "--fs", "2e6", "--format", "ishort")
     one_line_error(r, "no satellite")
     assert "Warning" not in r.stderr and "Warning" not in r.stdout
+
+
+def test_exit_codes_say_what_happened(tmp_path):
+    """Issue 23, item 6: a file ending mid-sample, an input shorter than the --duration asked for and an empty
+    standard input all exited 0 or looked like a wrong --fs; each now has its code (errors.py, README) and a line."""
+    from semperfi.errors import EXIT_BAD_INPUT, EXIT_INPUT_SHORT, EXIT_NO_SIGNAL
+    sim = tmp_path / "s.bin"
+    assert semperfi("sim", "-o", str(sim), "--fs", "2e6", "--duration", "0.3").returncode == 0
+    with open(sim, "ab") as f:
+        f.write(b"\x01")                      # half an int16: the file ends mid-sample
+    r = semperfi("clean", str(sim), "-o", str(tmp_path / "c.bin"))
+    assert r.returncode == EXIT_INPUT_SHORT and "mid-sample" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    r = semperfi("clean", str(sim), "-o", str(tmp_path / "d.bin"), "--duration", "0.5")
+    assert r.returncode == EXIT_INPUT_SHORT and "before the --duration" in r.stderr, r.stderr
+    r = subprocess.run([sys.executable, "-m", "semperfi.cli", "run", "-", "--fs", "2e6", "--format", "ishort",
+                        "--out", str(tmp_path / "o")], input=b"", capture_output=True, timeout=120)
+    assert r.returncode == EXIT_NO_SIGNAL and b"held no samples" in r.stderr, r.stderr
+    noise = tmp_path / "noise.bin"
+    noise.write_bytes(bytes(range(256)) * 4000)
+    r = semperfi("clean", str(noise), "--fs", "2e6", "--format", "ishort", "-o", str(tmp_path / "n.bin"))
+    assert r.returncode == EXIT_NO_SIGNAL and "no satellite" in r.stderr, r.stderr
+    one_line_error(semperfi("sim", "-o", str(tmp_path / "x.bin"), "--set", "signal.noise_rms=1e300"), "noise_rms")
+    assert EXIT_BAD_INPUT == 2
+
+
+def test_nan_samples_are_zeroed_and_said(tmp_path):
+    import numpy as np
+    x = np.random.default_rng(2).normal(size=2 * 400_000).astype(np.float32)
+    x[::997] = np.nan
+    (tmp_path / "nan.bin").write_bytes(x.tobytes())
+    r = semperfi("run", str(tmp_path / "nan.bin"), "--fs", "2e6", "--format", "gr_complex", "--out", str(tmp_path / "o"))
+    assert "NaN or infinite" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert '"nonfinite_samples"' in (tmp_path / "o" / "events.jsonl").read_text()
+
+
+@pytest.mark.parametrize("vehicle, word", [("", "expected tcp:"), ("udpin:127.0.0.1:99999", "port of 1-65535"),
+                                           ("bluetooth:x", "expected tcp:"), ("/dev/ttyACM0,12", "baud")])
+def test_a_vehicle_address_no_autopilot_has_is_one_line_before_any_flight(vehicle, word):
+    one_line_error(semperfi("fly", "--vehicle", vehicle), word)
+
+
+def test_outputs_into_a_missing_folder_are_made_before_the_work(tmp_path):
+    """Issue 23, item 5: --plot into a missing folder was a traceback after the table printed."""
+    sim = tmp_path / "s.bin"
+    assert semperfi("sim", "-o", str(sim), "--fs", "2e6", "--duration", "0.05").returncode == 0
+    plot = tmp_path / "new" / "folder" / "caf.png"
+    r = semperfi("acquire", str(sim), "--plot", str(plot))
+    assert r.returncode == 0 and plot.is_file(), r.stderr
+    blocked = tmp_path / "file"
+    blocked.write_text("")
+    one_line_error(semperfi("acquire", str(sim), "--plot", str(blocked / "caf.png")), "cannot write")

@@ -182,3 +182,54 @@ def test_a_silent_local_process_cannot_lock_the_receiver_out_of_the_flight_side(
     assert connected[0]["address"].endswith(f":{real.sock.getsockname()[1]}"), (connected, real.sock.getsockname())
     for end in (squatter, forger, real):
         end.close()
+
+
+@pytest.mark.parametrize("hostile", ["closes", "1 GiB length", "junk"])
+def test_a_flight_side_that_closes_or_breaks_its_framing_is_an_event_and_a_warning(hostile):
+    """Issue 23, item 7: such a flight side left nothing in stderr or events.jsonl."""
+    import time
+
+    from semperfi.defense.maneuver_id import LinkedManeuver
+    from semperfi.flight.link import LinkPeer
+    srv = socket.create_server(("127.0.0.1", 0))
+    peer = LinkPeer.connect("127.0.0.1", srv.getsockname()[1], KEY)
+    conn, _ = srv.accept()
+    if hostile == "1 GiB length":
+        conn.sendall(struct.pack(">I", 1 << 30))
+    elif hostile == "junk":
+        conn.sendall(struct.pack(">I", 40) + b"\xff" * 40)
+        time.sleep(0.2)
+        conn.sendall(b"\x00\x00")                # then half a length prefix, and gone
+    conn.close()
+    srv.close()
+    maneuver = LinkedManeuver(peer, 2e6)
+    for _ in range(100):
+        if peer.closed:
+            break
+        time.sleep(0.02)
+    news = dict(maneuver.news())
+    assert "link_lost" in news, news
+    if hostile == "junk":
+        assert news["link_rejected"]["frames"] == 1
+    assert maneuver.news() == []                 # told once
+    peer.close()
+
+
+def test_a_flight_side_that_does_not_answer_the_alarm_is_told_once():
+    from semperfi.defense.maneuver_id import LinkedManeuver
+
+    class Silent:
+        closed, rejected, sent = None, 0, []
+
+        def send(self, kind, payload):
+            self.sent.append(kind)
+
+        def poll(self):
+            return []
+
+    maneuver = LinkedManeuver(Silent(), 2e6)
+    maneuver.request(10.0, 7)
+    assert maneuver.pending(12.0) and maneuver.news() == []
+    assert not maneuver.pending(10.0 + LinkedManeuver.ACCEPT_S + 0.1)
+    assert maneuver.news() == [("maneuver_failed", {"why": "the flight side did not answer the alarm"})]
+    assert maneuver.news() == []

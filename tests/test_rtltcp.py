@@ -41,6 +41,34 @@ def test_stalled_stream_is_a_clear_error_not_a_short_block():
     thread.join(5)
 
 
+@pytest.mark.parametrize("cut", ["stall_after", "close_after"])
+def test_the_samples_before_a_stall_or_a_close_are_delivered_then_the_error(cut):
+    """Issue 23, item 8: the read a stall or a close cut short was thrown away (up to a quarter second of signal)."""
+    from semperfi.iq.source import SampleSource, SourceError
+    rng = np.random.default_rng(8)
+    raw = rng.integers(0, 256, size=2 * 300_001, dtype=np.uint8)   # 300,000.5 samples: the half one is dropped
+    port, thread, _ = serve_once(raw.tobytes(), **{cut: raw.size - 1})
+    source = SampleSource(f"rtl_tcp://127.0.0.1:{port}", fs_hz=1.2e6)
+    source._input.source.timeout_s = 0.5
+    got = []
+    with pytest.raises(SourceError, match="stalled|closed"):
+        for chunk in source.chunks(0.1):   # 2.5 reads: the third is cut short
+            got.append(chunk)
+    source.close()
+    thread.join(5)
+    want = (raw[:600_000].astype(np.float32) - 127.5).view(np.complex64)
+    assert np.array_equal(np.concatenate(got), want)
+
+
+@pytest.mark.parametrize("args, message", [
+    (dict(fs_hz=0.0), "sample rate"), (dict(fs_hz=-2e6), "sample rate"), (dict(fs_hz=1e12), "RTL-SDR samples"),
+    (dict(fs_hz=2.048e6, fmt="ishort"), "cu8"), (dict(fs_hz=2.048e6, if_hz=4e5), "IF 0")])
+def test_options_an_rtl_sdr_cannot_honour_are_refused_before_connecting(args, message):
+    from semperfi.iq.source import SampleSource
+    with pytest.raises(ValueError, match=message):   # port 9 (discard): nothing is ever connected to
+        SampleSource("rtl_tcp://127.0.0.1:9", **args)
+
+
 def test_acquire_over_rtl_tcp_end_to_end(tmp_path):
     """A recording replayed by a local rtl_tcp server: `semperfi acquire rtl_tcp://...` finds its satellite."""
     import subprocess

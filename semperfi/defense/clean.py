@@ -8,6 +8,7 @@ from .. import config
 from ..errors import log_internal_error
 from ..iq import GR_COMPLEX, IBYTE, ISHORT, IqWriter
 from ..iq.source import SourceError, chunk_seconds, open_source
+from ..receiver.interference import Monitor
 from ..receiver.outputs import EventLog
 from .guard import SpoofGuard
 
@@ -26,6 +27,10 @@ class CleanSummary:
     input_error: str | None = None
     internal_error: str | None = None
     interrupted: bool = False          # Ctrl-C: what was cleaned before it is written
+    satellites: tuple[int, ...] = ()   # PRNs whose signals the guard's searches found at all
+    truncated_bytes: int = 0           # the input ended mid-sample
+    missing_s: float = 0.0             # of the --duration asked for, what the input ended before
+    interference: str | None = None    # what the input held besides GPS at the end, if anything
 
 
 def clean_file(in_path, out_path, fmt, fs_hz, if_hz, cfg: dict, events_path=None, progress: bool = False,
@@ -49,6 +54,7 @@ def clean_file(in_path, out_path, fmt, fs_hz, if_hz, cfg: dict, events_path=None
                       "skip_s": source.skip_samples / source.fs_in_hz},
             description="SemperFi plug-in filter output (spoofing signals cancelled)") as writer:
         guard = SpoofGuard(cfg, source.fs_hz, source.if_hz, events, real_samples=source.real_valued)
+        monitor = Monitor(source.fs_hz, source.if_hz, events.emit)
         chunk_s = chunk_seconds(source.fs_hz)
         chunks = source.chunks(chunk_s)
         if progress:
@@ -58,6 +64,7 @@ def clean_file(in_path, out_path, fmt, fs_hz, if_hz, cfg: dict, events_path=None
                           unit="chunk", desc="cleaning")
         try:
             for chunk in chunks:
+                monitor.push(chunk)
                 writer.write(guard.push(chunk))
         except KeyboardInterrupt:
             interrupted = True
@@ -78,7 +85,9 @@ def clean_file(in_path, out_path, fmt, fs_hz, if_hz, cfg: dict, events_path=None
     return CleanSummary(out_path, source.n_samples / source.fs_hz, time.perf_counter() - t0,
                         tuple(sorted(guard.alarmed_prns)), tuple(sorted(guard.cancel_started)),
                         tuple(sorted(guard.verified)), dict(guard.gave_up), guard.canceller.report(), clipped,
-                        input_error, internal_error, interrupted)
+                        input_error, internal_error, interrupted, satellites=tuple(sorted(guard.present_prns)),
+                        truncated_bytes=source.truncated_bytes, missing_s=source.missing_s,
+                        interference=monitor.watch.now)
 
 
 def _output_format(source):

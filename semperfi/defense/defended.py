@@ -89,6 +89,10 @@ class DefendedReceiver:
     def last_fix(self):
         return self.inner.last_fix
 
+    @property
+    def interference(self):
+        return self.inner.interference
+
     def channel_rows(self):
         return self.inner.channel_rows()
 

@@ -60,7 +60,7 @@ class SpoofGuard:
         self._cleaned = 0                                # cleaned samples produced
         self._next_exam = 0
         self._next_full = 0
-        self._present: set[int] = set()
+        self.present_prns: set[int] = set()
         self.alarm_t_s: float | None = None
         self.alarmed_prns: set[int] = set()
         self.cancel_started: dict[int, float] = {}       # PRN -> t_s of its first cancellation
@@ -111,6 +111,8 @@ class SpoofGuard:
             self.maneuver.push(chunk)
             if self.maneuver.due_to_end(self._seen / self.fs_hz):
                 self._identify(self._seen / self.fs_hz)
+            for kind, fields in self.maneuver.news():
+                self._emit(kind, self._seen / self.fs_hz, **fields)
         starting = self.d["mode"] != "off" and self._seen < self._startup_samples
         if self.d["mode"] != "off" and self._seen >= self._next_exam and self._raw.size >= self.window:
             self._examine()
@@ -142,7 +144,8 @@ class SpoofGuard:
         a = self.cfg["acquisition"]
         n = int(round(self.fs_hz * 1e-3)) * 2 * EXAMINE_NONCOHERENT
         return acquire(window[:n], self.fs_hz, prns, DopplerGrid(center_hz, span_hz, 333.0),
-                       self.if_hz, 2, EXAMINE_NONCOHERENT, a["pfa"], max(EXAMINE_MAX_PEAKS, a["max_peaks"]))
+                       self.if_hz, 2, EXAMINE_NONCOHERENT, a["pfa"], max(EXAMINE_MAX_PEAKS, a["max_peaks"]),
+                       excise=True)   # a tone is no satellite, and no spoofer either
 
     def _look(self) -> tuple[np.ndarray, int]:
         """The window an examination searches, and its first sample's absolute index. Once spoofed signals are
@@ -165,13 +168,13 @@ class SpoofGuard:
         x, first = self._look()
         self._looked = (x, first)
         t_s = first / self.fs_hz
-        full = self._seen >= self._next_full or not self._present
-        prns = list(range(1, 33)) if full else sorted(self._present | self.extra_prns)
+        full = self._seen >= self._next_full or not self.present_prns
+        prns = list(range(1, 33)) if full else sorted(self.present_prns | self.extra_prns)
         if full:
             self._next_full = self._seen + int(self.d["full_search_every_s"] * self.fs_hz)
         cafs = self._acquire(x, prns, 0.0, self.cfg["acquisition"]["doppler_max_hz"])
         # a strong attacker's cross-talk puts peaks on absent PRNs: examining them every look would cost the most
-        self._present |= {p for p, c in cafs.items() if examinable(c.best, c, cafs, self.detector.cfg, self.fs_hz)}
+        self.present_prns |= {p for p, c in cafs.items() if examinable(c.best, c, cafs, self.detector.cfg, self.fs_hz)}
         self._last_cafs.update(cafs)
         if self.maneuver is not None and self.maneuver.due_to_start(t_s):
             self._follow_through_maneuver(cafs)
@@ -528,6 +531,6 @@ class SpoofGuard:
         t_s = self._seen / self.fs_hz
         self._emit("defense_summary", t_s, alarms=sorted(self.alarmed_prns), cancelled=sorted(self.cancel_started),
                    verified=sorted(self.verified), gave_up=self.gave_up, attenuation_db=self.canceller.report(),
-                   resolved=sorted(p for p in self._present | self.extra_prns if self.resolved(p)),
+                   resolved=sorted(p for p in self.present_prns | self.extra_prns if self.resolved(p)),
                    guessed=sorted(self.guessed), merged=sorted(self.merged),
                    suspect_close=sorted(self.detector.close))

@@ -132,6 +132,10 @@ class ManeuverIdentifier:
     def request(self, t_s: float, prn: int) -> None:
         """An alarm waits for the maneuver (a recorded track's maneuver comes when it comes)."""
 
+    def news(self) -> list[tuple[str, dict]]:
+        """What went wrong since the last call, as events (a recorded track has nothing to tell)."""
+        return []
+
     def pending(self, t_s: float) -> bool:
         """Whether a verdict can still come from this track's maneuver (it has not begun by t_s)."""
         return self.window_s is not None and not self.started and t_s < self.window_s[0]
@@ -207,6 +211,7 @@ class LinkedManeuver(ManeuverIdentifier):
         self.accepted_s: float | None = None
         self.maneuver_id: str | None = None
         self.failed: str | None = None
+        self._told: dict[str, object] = {"failed": None, "closed": None, "rejected": 0}
 
     def request(self, t_s: float, prn: int) -> None:
         if self.wanted is None:
@@ -236,6 +241,26 @@ class LinkedManeuver(ManeuverIdentifier):
                 self.failed = "the flight side did not answer the alarm"
             elif self.accepted_s is not None and self.track is None and t_s - self.accepted_s > self.TRACK_S:
                 self.failed = "no IMU track came back from the maneuver"
+
+    def news(self) -> list[tuple[str, dict]]:
+        """The link lost (the flight side closed, broke its framing, or sent an oversized frame), frames rejected
+        (counted: a flood is one event per REJECTS_TOLD more), the maneuver failed: each told once."""
+        out = []
+        closed = getattr(self.channel, "closed", None)
+        if closed and closed != self._told["closed"]:
+            out.append(("link_lost", {"why": f"the flight side's link is lost: {closed}"[:300]}))
+            self._told["closed"] = closed
+        rejected = int(getattr(self.channel, "rejected", 0) or 0)
+        if rejected and (not self._told["rejected"] or rejected >= self._told["rejected"] + self.REJECTS_TOLD):
+            out.append(("link_rejected", {"frames": rejected,
+                                          "why": f"{rejected} frames from the flight side failed their check"}))
+            self._told["rejected"] = rejected
+        if self.failed and self.failed != self._told["failed"]:
+            out.append(("maneuver_failed", {"why": self.failed}))
+            self._told["failed"] = self.failed
+        return out
+
+    REJECTS_TOLD = 1000
 
     def pending(self, t_s: float) -> bool:
         self._poll(t_s)

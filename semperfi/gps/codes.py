@@ -52,6 +52,21 @@ def ca_code(prn: int) -> np.ndarray:
     return code
 
 
+# G2 delays (chips) of Gold codes of the C/A family that no system transmits on L1 (GPS PRNs 1-63, SBAS 120-158,
+# QZSS 193-202 use others, and neither these nor 1023 minus them): what a search finds with one is not a satellite.
+UNUSED_G2_DELAYS = (300, 400, 600)
+
+
+@lru_cache(maxsize=None)
+def gold_code(g2_delay_chips: int) -> np.ndarray:
+    """G1 xor G2 delayed by g2_delay_chips, as +/-1 (read-only): PRN 1 is delay 5 (IS-GPS-200 Table 3-Ia)."""
+    g1 = _register_sequence((3, 10), (10,))
+    g2 = _register_sequence((2, 3, 6, 8, 9, 10), (10,))
+    code = (1 - 2 * (g1 ^ np.roll(g2, g2_delay_chips))).astype(np.int8)
+    code.setflags(write=False)
+    return code
+
+
 def first_chips_octal(prn: int, n_chips: int = 10) -> str:
     """The first chips of a code as the octal number IS-GPS-200 Table 3-Ia lists (logic 1 = 1)."""
     value = 0

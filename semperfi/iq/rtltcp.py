@@ -24,6 +24,20 @@ KNOWN_TUNERS = {0: "unknown", 1: "E4000", 2: "FC0012", 3: "FC0013", 4: "FC2580",
 CU8 = as_format("cu8")
 
 
+class _Partial(ValueError):
+    def __init__(self, message: str, received: bytearray):
+        super().__init__(message)
+        self.received = bytes(received)
+
+
+class StreamEnded(ValueError):
+    """The server stalled or closed mid-read; `samples` holds the whole samples that did arrive before."""
+
+    def __init__(self, message: str, samples: np.ndarray):
+        super().__init__(message)
+        self.samples = samples
+
+
 class RtlTcpSource:
     """Connect, check the header, tune, then `read` whole blocks of complex samples (centred uint8)."""
 
@@ -54,11 +68,11 @@ class RtlTcpSource:
             try:
                 block = self._sock.recv(min(n_bytes - len(buf), 1 << 20))
             except socket.timeout:
-                raise ValueError(f"rtl_tcp stream stalled: nothing for {self.timeout_s:g} s while reading {what} "
-                                 f"({len(buf)} of {n_bytes} bytes, {self.samples_read} samples before)") from None
+                raise _Partial(f"rtl_tcp stream stalled: nothing for {self.timeout_s:g} s while reading {what} "
+                               f"({len(buf)} of {n_bytes} bytes, {self.samples_read} samples before)", buf) from None
             if not block:
-                raise ValueError(f"rtl_tcp server closed the connection while sending {what} "
-                                 f"({len(buf)} of {n_bytes} bytes, {self.samples_read} samples before)")
+                raise _Partial(f"rtl_tcp server closed the connection while sending {what} "
+                               f"({len(buf)} of {n_bytes} bytes, {self.samples_read} samples before)", buf)
             buf += block
         return bytes(buf)
 
@@ -72,7 +86,13 @@ class RtlTcpSource:
         if skip:
             self._recv_exactly(skip * CU8.bytes_per_sample, "samples to skip")
             self.samples_read += skip
-        raw = self._recv_exactly(n_samples * CU8.bytes_per_sample, f"{n_samples} samples")
+        try:
+            raw = self._recv_exactly(n_samples * CU8.bytes_per_sample, f"{n_samples} samples")
+        except _Partial as cut:   # what arrived before the stall or the close is signal: hand it on
+            whole = len(cut.received) // CU8.bytes_per_sample * CU8.bytes_per_sample
+            self.samples_read += whole // CU8.bytes_per_sample
+            raise StreamEnded(str(cut), decode_items(np.frombuffer(cut.received[:whole], dtype=np.uint8), CU8)) \
+                from None
         self.samples_read += n_samples
         return decode_items(np.frombuffer(raw, dtype=np.uint8), CU8)
 

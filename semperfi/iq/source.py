@@ -48,7 +48,7 @@ class SourceError(ValueError):
 
 @dataclass
 class Notice:
-    kind: str            # input_slow | input_lagging
+    kind: str            # input_slow | input_lagging | nonfinite_samples
     t_s: float           # processing time at which it was seen
     fields: dict = field(default_factory=dict)
 
@@ -106,21 +106,43 @@ class _PipeInput:
 
 
 class _RtlTcpInput:
+    """The server's samples; when it stalls or closes, the samples of the read it cut short are delivered first,
+    and the failure at the next take."""
+
     def __init__(self, source):
         self.source = source
+        self._failed: str | None = None
 
     def take(self, n: int) -> np.ndarray:
+        from .rtltcp import StreamEnded
+        if self._failed is not None:
+            raise SourceError(self._failed)
         try:
             return self.source.read(self.source.samples_read, n)
+        except StreamEnded as exc:
+            if not exc.samples.size:
+                raise SourceError(str(exc)) from None
+            self._failed = str(exc)
+            return exc.samples
         except ValueError as exc:
             raise SourceError(str(exc)) from None
 
 
-def _rtl_tcp(url: str, fs_hz):
+RTL_FS_RANGES_HZ = ((225e3, 300e3), (900e3, 3.2e6))   # what an RTL2832U samples at
+
+
+def _rtl_tcp(url: str, fmt, fs_hz, if_hz):
     from .rtltcp import RtlTcpSource
     host, _, port = url[len("rtl_tcp://"):].rpartition(":")
     if not host or not port.isdigit() or not 0 < int(port) < 65536 or fs_hz is None:
         raise ValueError(f"expected rtl_tcp://HOST:PORT with --fs, got {url!r}")
+    fs_hz = _positive_float(fs_hz, "sample rate (--fs)")
+    if not any(lo <= fs_hz <= hi for lo, hi in RTL_FS_RANGES_HZ):
+        raise ValueError(f"an RTL-SDR samples at 225-300 kHz or 0.9-3.2 MHz, not --fs {fs_hz:g}")
+    if fmt is not None and as_format(fmt).name != "cu8":
+        raise ValueError(f"rtl_tcp delivers unsigned 8-bit I/Q (cu8): --format {as_format(fmt).name} does not apply")
+    if if_hz:
+        raise ValueError(f"rtl_tcp is tuned to L1 itself (IF 0): --if {if_hz:g} does not apply")
     return RtlTcpSource(host, int(port), fs_hz)
 
 
@@ -139,7 +161,7 @@ class SampleSource:
             self._input = _PipeInput(stdin or sys.stdin.buffer, self.fmt)
             self.n_available = None
         elif self.spec.startswith("rtl_tcp://"):
-            rtl = _rtl_tcp(self.spec, fs_hz)
+            rtl = _rtl_tcp(self.spec, fmt, fs_hz, if_hz)
             self.fmt, self.fs_in_hz, self.if_in_hz = as_format("cu8"), rtl.fs_hz, 0.0
             self._input, self.n_available, self.live = _RtlTcpInput(rtl), None, True
         else:
@@ -170,6 +192,7 @@ class SampleSource:
         self.samples_in = 0        # input samples delivered after the skip
         self.n_samples = 0         # processing samples delivered
         self.notices: list[Notice] = []
+        self.nonfinite_samples = 0  # NaN or infinite samples zeroed
         self._skipped = False
 
     @property
@@ -188,6 +211,11 @@ class SampleSource:
         if self.stop_samples is not None:
             n = self.stop_samples if n is None else min(n, self.stop_samples)
         return None if n is None else n // self.factor
+
+    @property
+    def missing_s(self) -> float:
+        """Seconds of the window asked for (--duration) that the input ended before."""
+        return 0.0 if self.stop_samples is None else max(self.stop_samples - self.samples_in, 0) / self.fs_in_hz
 
     def _skip(self) -> None:
         if isinstance(self._input, _FileInput):
@@ -217,6 +245,8 @@ class SampleSource:
                 watch.waited(time.perf_counter() - t_wait, n_read)
             if n_read == 0:
                 break
+            if not self.fmt.is_integer:
+                x = self._finite(x)
             if self._decimator is not None:
                 if self.if_in_hz:
                     x = self._to_baseband(x)
@@ -226,6 +256,20 @@ class SampleSource:
             if len(x):
                 yield x
         self.truncated_bytes = getattr(self._input, "truncated_bytes", self.truncated_bytes)
+
+    def _finite(self, x: np.ndarray) -> np.ndarray:
+        """Float samples with NaN or infinity in them (a broken converter, a hostile file) zeroed, counted, and
+        reported the first time: one would poison every correlation it enters."""
+        bad = ~np.isfinite(x)
+        if not bad.any():
+            return x
+        if not self.nonfinite_samples:
+            self.notices.append(Notice("nonfinite_samples", self.n_samples / self.fs_hz, {
+                "why": f"samples that are NaN or infinite from {self.samples_in / self.fs_in_hz:.3f} s on: zeroed"}))
+        self.nonfinite_samples += int(bad.sum())
+        x = x.copy()
+        x[bad] = 0
+        return x
 
     def _to_baseband(self, x: np.ndarray) -> np.ndarray:
         """Shift L1 from the IF to 0 Hz, the phase running on from chunk to chunk (index in input samples)."""

@@ -12,9 +12,10 @@ import numpy as np
 import scipy.fft
 from numba import njit
 
-from ..gps.codes import ca_code
+from ..gps.codes import UNUSED_G2_DELAYS, ca_code, gold_code
 from ..gps.constants import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, CA_CODE_PERIOD_S, L1_HZ
 from .chisquare import chi2_isf, chi2_median
+from .interference import NONE, Interference, excise_narrowband
 from .workers import cores, run_each, scratch
 
 
@@ -59,7 +60,7 @@ class Caf:
     coherent_s: float
     peaks: tuple[Peak, ...]
     second_peak_ratio: float = 0.0   # best peak over the highest cell away from its code phase (1.5 chips)
-    excised_bins: int = 0            # spectral bins zeroed as DC or spurs before the search
+    interference: Interference = NONE   # what the search block held besides noise and GPS (excised when asked)
     mean_power: float = 1.0          # the CAF's mean (its noise floor, about 1)
 
     @property
@@ -98,11 +99,20 @@ def _kept_bins(n_ms: int) -> np.ndarray:
     return np.r_[0:caf_columns(n_ms) - half, n_ms - half:n_ms]
 
 
+# Codes no satellite transmits (keys below 1): their CAFs hold everything in a block that is not a satellite.
+REFERENCE_KEYS = tuple(-i for i in range(1, len(UNUSED_G2_DELAYS) + 1))
+
+
+def _code(key: int) -> np.ndarray:
+    return ca_code(key) if key > 0 else gold_code(UNUSED_G2_DELAYS[-key - 1])
+
+
 @functools.lru_cache(maxsize=64)
-def _local_replica_fft(prn: int, n: int, fs_hz: float) -> np.ndarray:
-    """The sampled code's spectrum in the CAF's band (cached: every look of every examination asks for the same)."""
+def _local_replica_fft(key: int, n: int, fs_hz: float) -> np.ndarray:
+    """The sampled code's spectrum in the CAF's band (cached: every look of every examination asks for the same);
+    key is a PRN, or one of REFERENCE_KEYS."""
     chips = np.floor(np.arange(n) * CA_CHIP_RATE_HZ / fs_hz).astype(np.int64) % CA_CODE_LENGTH_CHIPS
-    spectrum = scipy.fft.fft(ca_code(prn)[chips].astype(np.complex64))[_kept_bins(n)]
+    spectrum = scipy.fft.fft(_code(key)[chips].astype(np.complex64))[_kept_bins(n)]
     spectrum.flags.writeable = False
     return spectrum
 
@@ -146,59 +156,6 @@ def _wiped_spectra(x: np.ndarray, fs_hz: float, if_hz: float, dopplers: np.ndarr
     return spectra
 
 
-EXCISE_DB = 13.0          # a spectral bin this far above its local noise floor is a spur, not GPS (see below)
-EXCISE_MAX_FRACTION = 0.02
-
-
-COMB_MIN_MS = 20            # the 1 kHz comb is notched only in blocks this long (it costs 3 bins in N ms)
-COMB_RATIO = 1.3            # mean comb-bin power over the rest that says "1 ms periodic interference"
-
-
-def excise_narrowband(x: np.ndarray, samples_per_ms: int | None = None,
-                      threshold_db: float = EXCISE_DB) -> tuple[np.ndarray, int]:
-    """Zero the DC offset and narrowband spurs of a block of samples in the frequency domain.
-
-    Real front ends add a DC offset and clock spurs (often at multiples of 1 kHz or of 511.5 kHz) that correlate
-    with every C/A code and make all 32 PRNs look "acquired". GPS itself lies below the noise: at this block's
-    resolution (1 / its length) even a 60 dB-Hz signal's strongest code line is ~13 dB above the floor only when
-    the block is long and the line is not spread by the 50 Hz data, so a bin 13 dB over the local floor (an
-    exponential noise bin does that with probability e^-20) is interference. Bins above it and their two
-    neighbours each side are zeroed; when more than 2 % of bins would go, nothing is excised (broadband
-    interference is not what this fixes).
-
-    Interference that repeats every millisecond (a USB frame clock) lives on a comb of lines at multiples of
-    1 kHz and correlates with every code at Dopplers of k kHz. When the block is whole milliseconds, at least
-    COMB_MIN_MS long, and those comb bins hold clearly more power than the rest, the comb and its neighbours are
-    zeroed: 3 bins in N, a loss of 3/N of a satellite's power. Returns (cleaned samples, bins excised).
-    """
-    n = x.size
-    spec = scipy.fft.fft(x)
-    p = (spec.real ** 2 + spec.imag ** 2).astype(np.float64)
-    # Local noise floor: the median of 64 segments (robust to the few spur bins), as a mean of an exponential.
-    n_seg = 64 if n >= 64 * 16 else 1
-    edges = np.linspace(0, n, n_seg + 1).astype(np.int64)
-    floor = np.empty(n)
-    for lo, hi in zip(edges[:-1], edges[1:]):
-        floor[lo:hi] = np.median(p[lo:hi]) / np.log(2.0)
-    bad = p > floor * 10 ** (threshold_db / 10)
-    bad[0] = True   # DC: an offset there never carries GPS (Doppler 0 of a baseband signal is its centre)
-    for shift in (1, 2):
-        bad |= np.roll(bad, shift) | np.roll(bad, -shift)
-    if bad.sum() > EXCISE_MAX_FRACTION * n:
-        bad[:] = False
-    if samples_per_ms and n % samples_per_ms == 0 and n // samples_per_ms >= COMB_MIN_MS:
-        n_blocks = n // samples_per_ms
-        comb = np.zeros(n, dtype=bool)
-        comb[::n_blocks] = True
-        if np.mean(p[comb] / floor[comb]) > COMB_RATIO * np.mean(p[~comb] / floor[~comb]):
-            bad |= comb | np.roll(comb, 1) | np.roll(comb, -1)
-    n_bad = int(bad.sum())
-    if n_bad == 0:
-        return x, 0
-    spec[bad] = 0
-    return scipy.fft.ifft(spec).astype(np.complex64), n_bad
-
-
 def second_peak_ratio(power: np.ndarray, row: int, col: int, fs_hz: float, exclude_chips: float = 1.5) -> float:
     """The main peak over the highest CAF cell more than `exclude_chips` from its code phase (any Doppler): a real
     signal stands alone (ratio well above 1); noise and spurs give a second peak nearly as high (ratio ~1)."""
@@ -216,18 +173,24 @@ def _threshold(pfa: float, n_cells: int, n_noncoherent: int) -> float:
     return float(chi2_isf(pfa_cell, 2 * n_noncoherent) / (2 * n_noncoherent))
 
 
+def _tail_level(power: np.ndarray, pfa_cell: float) -> float:
+    """The level cells like these exceed with probability pfa_cell: the 99 % and 99.9 % quantiles extrapolated as
+    an exponential tail (for chi-square noise a little above the exact level: conservative)."""
+    q1, q2 = np.quantile(power, [0.99, 0.999])
+    return float(q2 + (q2 - q1) * np.log(1e-3 / pfa_cell) / np.log(10.0))
+
+
 def _empirical_threshold(power: np.ndarray, pfa_cell: float, dopplers_hz: np.ndarray, coherent_s: float) -> float:
-    """The level a CAF's own noise exceeds with probability pfa_cell, from its tail: the 99 % and 99.9 % quantiles
-    extrapolated as an exponential tail. Real captures have heavier tails than the chi-square theory (other
-    satellites' cross-correlation, quantisation, interference left after excision); a few signal cells cannot
-    move these quantiles. Rows within 1.5 / coherent time of the strongest cell are left out: they hold that
-    signal's own code sidelobes, which would hide a weaker signal of the same PRN (the spoofing case)."""
+    """The level a CAF's own noise exceeds with probability pfa_cell, from its tail. Real captures have heavier
+    tails than the chi-square theory (other satellites' cross-correlation, quantisation, interference left after
+    excision); a few signal cells cannot move these quantiles. Rows within 1.5 / coherent time of the strongest
+    cell are left out: they hold that signal's own code sidelobes, which would hide a weaker signal of the same PRN
+    (the spoofing case)."""
     top_row = np.unravel_index(int(np.argmax(power)), power.shape)[0]
     far = np.abs(dopplers_hz - dopplers_hz[top_row]) > 1.5 / coherent_s
     if far.sum() >= 3:
         power = power[far]
-    q1, q2 = np.quantile(power, [0.99, 0.999])
-    return float(q2 + (q2 - q1) * np.log(1e-3 / pfa_cell) / np.log(10.0))
+    return _tail_level(power, pfa_cell)
 
 
 def _interp(y_minus: float, y0: float, y_plus: float) -> float:
@@ -275,11 +238,15 @@ def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: Dopple
             tail_threshold: bool = False) -> dict[int, Caf]:
     """Search each PRN over the Doppler grid and every code phase.
 
-    Uses coherent_ms * noncoherent ms of samples from the start; with `excise`, DC and narrowband spurs are
-    excised first (`excise_narrowband`). The noise floor sigma^2 is the CAF's median (with `tail_threshold`, per
-    Doppler row, robust to what is left of interference near one Doppler). With `tail_threshold`
-    the threshold is also at least the CAF's own empirical tail at the false-alarm rate (`_empirical_threshold`):
-    what holds the rate on real captures, where strong satellites' cross-correlation fattens the tail.
+    Uses coherent_ms * noncoherent ms of samples from the start; with `excise`, DC and narrowband lines are
+    excised first (`interference.excise_narrowband`), and when there were any, the threshold is at least the tail
+    of the CAFs of codes no satellite sends (REFERENCE_KEYS) at the false-alarm rate: what is left of interference
+    (its sidebands, quantisation products, a tone so strong nothing else was recorded) correlates with those codes
+    as with every PRN, so it can no longer pass for a satellite. The noise floor sigma^2 is the CAF's median (with
+    `tail_threshold`, per Doppler row, robust to what is left of interference near one Doppler). With
+    `tail_threshold` the threshold is also at least the CAF's own empirical tail at the false-alarm rate
+    (`_empirical_threshold`): what holds the rate on real captures, where strong satellites' cross-correlation
+    fattens the tail.
     """
     if not 1 <= coherent_ms <= 20 or noncoherent < 1:
         raise ValueError("acquisition wants 1-20 ms coherent and at least one non-coherent sum")
@@ -288,9 +255,9 @@ def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: Dopple
     if samples.size < need:
         raise ValueError(f"acquisition needs {need} samples ({coherent_ms * noncoherent} ms), got {samples.size}")
     x = np.asarray(samples[:need], dtype=np.complex64)
-    excised = 0
+    interference = NONE
     if excise:
-        x, excised = excise_narrowband(x, n_ms)
+        x, interference = excise_narrowband(x, fs_hz, if_hz, n_ms)
     if _whole_ms(fs_hz, n_ms):
         grid = grid.khz_periodic()
     dopplers = grid.values_hz()
@@ -303,9 +270,10 @@ def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: Dopple
     prns = list(prns)
     fft_workers = 1 if len(prns) > 1 else cores()   # several PRNs: one per thread
 
-    def caf_of(prn: int) -> Caf:
-        work = np.multiply(spectra, _local_replica_fft(prn, n_ms, fs_hz), out=scratch("acquisition", spectra.shape,
-                                                                                       np.complex64))
+    def power_of(key: int) -> np.ndarray:
+        """|R|^2 over the noise floor for one code."""
+        work = np.multiply(spectra, _local_replica_fft(key, n_ms, fs_hz), out=scratch("acquisition", spectra.shape,
+                                                                                      np.complex64))
         coh = scipy.fft.ifft(work, axis=2, overwrite_x=True, workers=fft_workers)   # in place
         raw = noncoherent_power(coh)
         # the noise floor from every MEDIAN_STRIDE-th code phase: the same median to a fraction of a percent
@@ -313,8 +281,19 @@ def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: Dopple
         sigma2 = (np.median(sample, axis=1, keepdims=True) if tail_threshold else np.median(sample)) / chi_median
         # a window of zeros (a front end's dropout, a gap filled by the reader) has no floor: nothing is found in it
         sigma2 = np.maximum(np.asarray(sigma2, dtype=np.float32), np.finfo(np.float32).tiny)
-        power = raw / sigma2
-        thr = thr_theory
+        return raw / sigma2
+
+    thr_floor = thr_theory
+    if interference.jamming:   # nothing under it is a satellite: no search
+        return {prn: Caf(prn, dopplers, code_chips, None, np.inf, coherent_ms * CA_CODE_PERIOD_S, (), 0.0,
+                         interference) for prn in prns}
+    if interference.present:
+        references = run_each(power_of, list(REFERENCE_KEYS))
+        thr_floor = max(thr_floor, _tail_level(np.concatenate([r.ravel() for r in references]), pfa_cell))
+
+    def caf_of(prn: int) -> Caf:
+        power = power_of(prn)
+        thr = thr_floor
         if tail_threshold:
             thr = max(thr, _empirical_threshold(power, pfa_cell, dopplers, coherent_ms * CA_CODE_PERIOD_S))
         peaks = []
@@ -336,6 +315,6 @@ def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: Dopple
                                    n_cols / CA_CODE_PERIOD_S)
         # 32 PRNs' CAFs at 5 MSa/s would hold 24 MB: only the detections keep theirs (for plots)
         return Caf(prn, dopplers, code_chips, power if peaks else None, thr, coherent_ms * CA_CODE_PERIOD_S,
-                   tuple(peaks), ratio2, excised, float(np.mean(power)))
+                   tuple(peaks), ratio2, interference, float(np.mean(power)))
 
     return dict(zip(prns, run_each(caf_of, prns)))

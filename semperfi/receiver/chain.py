@@ -17,6 +17,7 @@ from .navigation import ASSIST_MAX_AGE_S, AssistedNav, NavDecoder
 from .pvt import solve
 from .rinex_obs import ObsEpoch
 from .integrity import IntegrityConfig, SigmaModel
+from .interference import Watch
 from .tracking import NEXT_SAMPLE, Channel, LoopConfig, initial_state
 from .workers import run_each
 from .types import Fix, Observation
@@ -109,6 +110,7 @@ class Receiver:
         # (channel, code period, its transmit time) that next channel took from it
         self._donors: dict[int, Donor] = {}
         self._carried: dict[int, tuple[Channel, int, float]] = {}
+        self.interference = Watch(self._emit)   # what the searches find besides GPS, reported when it changes
 
     # -- events ---------------------------------------------------------------------------------------------
     def _emit(self, kind: str, t_rx_s: float, **fields) -> None:
@@ -120,8 +122,12 @@ class Receiver:
         a = self.cfg["acquisition"]
         step = a["doppler_step_hz"] or 2.0 / 3.0 / (a["coherent_ms"] * 1e-3)
         grid = DopplerGrid(center_hz, span_hz or a["doppler_max_hz"], step)
-        return acquire(samples, self.fs_hz, prns, grid, self.if_hz, a["coherent_ms"], a["noncoherent"], a["pfa"],
-                       a["max_peaks"])
+        cafs = acquire(samples, self.fs_hz, prns, grid, self.if_hz, a["coherent_ms"], a["noncoherent"], a["pfa"],
+                       a["max_peaks"], excise=True)
+        if cafs:
+            self.interference.update(next(iter(cafs.values())).interference,
+                                     (self._base + self._buf.size) / self.fs_hz)
+        return cafs
 
     def _is_cross_talk(self, caf: Caf, cafs: dict[int, Caf]) -> bool:
         """A weak peak at the Doppler (mod 1 kHz) of a much stronger PRN is that PRN's cross-correlation."""

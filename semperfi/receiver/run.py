@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .. import config
-from ..errors import log_internal_error
+from ..errors import NoSignal, log_internal_error
 from ..gps.time import GpsTime
 from ..iq.source import SampleSource, SourceError, chunk_seconds, open_source
 from .chain import Receiver, RunStats
@@ -16,10 +16,6 @@ from .config import DEFAULTS
 from .navigation import AssistedNav
 from .outputs import OutputWriter, write_config
 from .types import Fix
-
-
-class NoSignal(ValueError):
-    """Nothing could be acquired: almost always a wrong sample rate, format or IF."""
 
 
 @dataclass(frozen=True)
@@ -33,6 +29,7 @@ class RunSummary:
     input_error: str | None = None   # the input failed part-way (closed, stalled): what came before is processed
     internal_error: str | None = None   # a bug stopped the run: what came before is written, the event says where
     interrupted: bool = False           # Ctrl-C: what came before is written
+    missing_s: float = 0.0              # of the --duration asked for, what the input ended before
 
 
 def _live_table(receiver: Receiver, t_s: float, total_s: float | None = None):
@@ -66,7 +63,7 @@ def run_file(path: str | Path, fmt: str | None, fs_hz: float | None, if_hz: floa
     interrupted = False
     total_s = None if source.expected_samples is None else source.expected_samples / source.fs_hz
     with OutputWriter(out_dir, cfg["output"]["formats"]) as out:
-        receiver = receiver_factory(cfg, source.fs_hz, source.if_hz, assisted, on_fix=out.write, events=out,
+        receiver = receiver_factory(cfg, source.fs_hz, source.if_hz, assisted, on_fix=out.write, events=_Loud(out),
                                     week_hint=_week_hint(source, assisted), on_observations=out.write_observations)
         if receiver_hook is not None:
             receiver_hook(receiver)
@@ -82,9 +79,15 @@ def run_file(path: str | Path, fmt: str | None, fs_hz: float | None, if_hz: floa
             live_ctx.start()
         try:
             last_draw = 0.0
+            interference = None
             for chunk in source.chunks(chunk_seconds(source.fs_hz)):
                 receiver.feed(chunk)
                 _report_notices(source, out)
+                if receiver.interference.now != interference:
+                    interference = receiver.interference.now
+                    if interference:
+                        print(f"warning at t = {receiver.stats.samples / source.fs_hz:.1f} s: {interference}",
+                              file=sys.stderr)
                 if stop is not None and stop(receiver):
                     break
                 now = time.perf_counter()
@@ -113,11 +116,41 @@ def run_file(path: str | Path, fmt: str | None, fs_hz: float | None, if_hz: floa
                 live_ctx.stop()
     summary = RunSummary(receiver.stats, receiver.last_fix, source.n_samples / source.fs_hz,
                          time.perf_counter() - t0, source.truncated_bytes, out_dir, input_error, internal_error,
-                         interrupted)
+                         interrupted, source.missing_s)
+    if source.nonfinite_samples:
+        print(f"warning: {source.nonfinite_samples} samples were NaN or infinite and were zeroed", file=sys.stderr)
     if not receiver.stats.confirmed and input_error is None and internal_error is None and not interrupted:
-        raise NoSignal(f"no satellite signal could be tracked in {source.name}: check --fs ({source.fs_in_hz:g} Hz), "
-                       f"--format ({source.fmt.name}) and --if ({source.if_in_hz:g} Hz); outputs in {out_dir}")
+        if source.n_samples == 0:
+            raise NoSignal(f"{source.name} held no samples; outputs in {out_dir}")
+        if receiver.interference.now:
+            raise NoSignal(f"no satellite signal could be tracked in {source.name} under its "
+                           f"{receiver.interference.now}; outputs in {out_dir}")
+        acquired = sorted(receiver.stats.acquired)
+        seen = f" (acquired, none to bit synchronisation: PRNs {' '.join(map(str, acquired))})" if acquired else ""
+        short = f"; {source.n_samples / source.fs_hz:.1f} s is too short to track (bit synchronisation needs a few " \
+            f"seconds)" if acquired and source.n_samples < SHORT_S * source.fs_hz else ""
+        raise NoSignal(f"no satellite signal could be tracked in {source.name}{seen}: check --fs "
+                       f"({source.fs_in_hz:g} Hz), --format ({source.fmt.name}) and --if ({source.if_in_hz:g} Hz)"
+                       f"{short}; outputs in {out_dir}")
     return summary
+
+
+SHORT_S = 5.0   # a recording shorter than this may hold satellites that never reach bit synchronisation
+
+
+class _Loud:
+    """The event log, with what a user must hear of as it happens (the flight side's link lost or flooding it, a
+    maneuver that failed) also on stderr."""
+
+    LOUD = ("link_lost", "link_rejected", "maneuver_failed")
+
+    def __init__(self, out: OutputWriter):
+        self.out = out
+
+    def emit(self, kind: str, t_s: float, **fields) -> None:
+        self.out.emit(kind, t_s, **fields)
+        if kind in self.LOUD:
+            print(f"warning at t = {t_s:.1f} s: {fields.get('why', kind)}", file=sys.stderr)
 
 
 def _report_notices(source: SampleSource, out: OutputWriter) -> None:

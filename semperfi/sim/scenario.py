@@ -97,7 +97,7 @@ def check(cfg: dict) -> None:
                                           "IF: byte, short, float)")
     need(s["format"] not in REAL_FORMATS or s["if_hz"] != 0,
          f"signal.format = '{s['format']}' is real-valued: set signal.if_hz (between 0 and half the sample rate)")
-    need(s["noise_rms"] >= 0, "signal.noise_rms must not be negative")
+    need(0 <= s["noise_rms"] <= 1e6, f"signal.noise_rms = {s['noise_rms']:g} (0 = the format's default, up to 1e6)")
     need(0 < cfg["time"]["duration_s"] <= 86400, f"time.duration_s = {cfg['time']['duration_s']:g} (0 to 1 day)")
     need(-5 <= c["elevation_mask_deg"] < 90, "constellation.elevation_mask_deg must lie in [-5, 90)")
     need(15 <= c["cn0_dbhz"] <= 70, f"constellation.cn0_dbhz = {c['cn0_dbhz']:g} (15 to 70 dB-Hz)")
