@@ -70,6 +70,9 @@ class RtlTcpSource:
             except socket.timeout:
                 raise _Partial(f"rtl_tcp stream stalled: nothing for {self.timeout_s:g} s while reading {what} "
                                f"({len(buf)} of {n_bytes} bytes, {self.samples_read} samples before)", buf) from None
+            except OSError as exc:   # reset by the server, or the network gone
+                raise _Partial(f"rtl_tcp connection failed while reading {what}: {exc.strerror or exc} "
+                               f"({len(buf)} of {n_bytes} bytes, {self.samples_read} samples before)", buf) from None
             if not block:
                 raise _Partial(f"rtl_tcp server closed the connection while sending {what} "
                                f"({len(buf)} of {n_bytes} bytes, {self.samples_read} samples before)", buf)
