@@ -138,3 +138,11 @@ def test_outputs_into_a_missing_folder_are_made_before_the_work(tmp_path):
     blocked = tmp_path / "file"
     blocked.write_text("")
     one_line_error(semperfi("acquire", str(sim), "--plot", str(blocked / "caf.png")), "cannot write")
+
+
+def test_fly_checks_its_track_file_before_flying(tmp_path):
+    """Issue 23, item 5: `fly -o` into a missing folder failed after the maneuver was flown, and the track was lost."""
+    blocked = tmp_path / "file"
+    blocked.write_text("")
+    one_line_error(semperfi("fly", "--vehicle", "udpin:127.0.0.1:14999", "-o", str(blocked / "track.csv")),
+                   "cannot write")

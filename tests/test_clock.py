@@ -8,14 +8,11 @@ derived from the model's own variances: an offset is detected with probability 1
 against a prediction reaches pbias^2 (the same quantity RAIM's protection levels use)."""
 
 import csv
-import json
-from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from semperfi.defense.clock_guard import NS_PER_M, ClockGuard, ClockGuardConfig
-from semperfi.receiver.chisquare import chi2_isf
 from semperfi.receiver.clock import LAGS_S, ClockModel, ClockNoise
 from semperfi.receiver.integrity import pbias
 from semperfi.receiver.types import TIME_TRUSTED, TRUSTED_STATES, Fix

@@ -8,7 +8,6 @@ every run. INPUTS_PER_SURFACE says how many each tries.
 """
 
 import io
-import json
 import math
 import random
 import socket
@@ -22,7 +21,8 @@ import pytest
 from click.testing import CliRunner
 
 from semperfi.cli import main
-from semperfi.errors import SemperFiError
+
+from rtl_tcp_server import serve_once
 
 SEED = 23
 INPUTS_PER_SURFACE = {"iq file": 120, "sidecar": 200, "rinex": 40, "toml": 200, "set": 400, "imu csv": 200,
@@ -184,33 +184,13 @@ def test_fuzzed_standard_input_is_processed_or_refused_in_one_line(recording, tm
         _one_line_or_ok(result)
 
 
-def _serve(payload: bytes):
-    srv = socket.create_server(("127.0.0.1", 0))
-    srv.settimeout(10)
-
-    def run():
-        try:
-            conn, _ = srv.accept()
-        except OSError:
-            return
-        with conn:
-            try:
-                conn.sendall(payload)
-                conn.settimeout(0.5)
-                conn.recv(1)
-            except OSError:
-                pass
-        srv.close()
-    threading.Thread(target=run, daemon=True).start()
-    return srv.getsockname()[1]
-
-
 def test_fuzzed_rtl_tcp_servers_are_read_or_refused():
     from semperfi.iq.source import SampleSource
     rng = random.Random(SEED)
     good = b"RTL0" + struct.pack(">II", 5, 29) + bytes(rng.randrange(256) for _ in range(20_000))
     for _ in range(INPUTS_PER_SURFACE["rtl_tcp"]):
-        port = _serve(mutate(good, rng))
+        hostile = mutate(good, rng)
+        port, _, _ = serve_once(hostile[12:], header=hostile[:12], close_after=len(hostile))
         t0 = time.monotonic()
         try:
             source = SampleSource(f"rtl_tcp://127.0.0.1:{port}", fs_hz=1.2e6)

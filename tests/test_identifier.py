@@ -5,7 +5,7 @@ import pytest
 from semperfi.defense.identifier import (GpsTrack, ImuTrack, LineOfSight, PeakHistory, identify_peaks,
                                          paper_test)
 from semperfi.flight.maneuver import Leg, ManeuverLimits, plan_trajectory
-from semperfi.gps.constants import L1_WAVELENGTH_M, SPEED_OF_LIGHT_M_S
+from semperfi.gps.constants import L1_WAVELENGTH_M
 
 VRW_MPS = 1.59 / 3.6   # the paper's worst velocity random walk over the maneuver
 

@@ -2,7 +2,6 @@
 
 Catches an undeclared runtime dependency (issue 12: `rich` was imported but not declared)."""
 import subprocess
-import sys
 import venv
 from pathlib import Path
 

@@ -435,7 +435,6 @@ def test_packed_files_read_at_any_sample_in_chunks_and_from_a_pipe(tmp_path, nam
 def test_two_bit_recording_of_gps_acquires_at_the_truths_code_phase(tmp_path, name):
     """A simulated scene quantised to 2 bits as a low-bit front end does (thresholds at one sigma), real at an IF or
     complex: the satellites come out at the simulator's code phases."""
-    from semperfi.gps.constants import CA_CHIP_RATE_HZ
     from semperfi.receiver.acquisition import DopplerGrid, acquire
     from semperfi.sim.run import simulate_to_file
     from semperfi.sim.scenario import load_scenario

@@ -233,3 +233,26 @@ def test_a_flight_side_that_does_not_answer_the_alarm_is_told_once():
     assert not maneuver.pending(10.0 + LinkedManeuver.ACCEPT_S + 0.1)
     assert maneuver.news() == [("maneuver_failed", {"why": "the flight side did not answer the alarm"})]
     assert maneuver.news() == []
+
+
+def test_every_read_has_a_deadline_a_silent_peer_is_gone_a_beating_one_stays(monkeypatch):
+    """Issue 23: the link's reader waited forever on a peer that stayed connected and said nothing."""
+    import time
+
+    from semperfi.flight import link
+    from semperfi.flight.link import LinkPeer
+    monkeypatch.setattr(link, "SILENT_S", 0.6)
+    monkeypatch.setattr(link, "HEARTBEAT_S", 0.1)
+    srv = socket.create_server(("127.0.0.1", 0))
+    silent_end = LinkPeer.connect("127.0.0.1", srv.getsockname()[1], KEY)
+    conn, _ = srv.accept()                      # connected, and never a byte back
+    beating_end = LinkPeer.connect("127.0.0.1", srv.getsockname()[1], KEY)
+    other = LinkPeer(srv.accept()[0], KEY)      # a LinkPeer too: it beats
+    time.sleep(1.5)
+    assert silent_end.closed and "silent" in silent_end.closed
+    assert beating_end.closed is None and other.closed is None
+    assert other.poll() == [("hello", {})]      # heartbeats are not messages
+    for end in (silent_end, beating_end, other):
+        end.close()
+    conn.close()
+    srv.close()

@@ -2,7 +2,6 @@
 processing rate below the recording's. The same recording gives the same fixes whichever way it arrives; a stream
 that is lost, slow or outpaces the receiver is reported, never silently mistimed."""
 
-import csv
 import json
 import os
 import subprocess

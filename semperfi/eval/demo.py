@@ -89,7 +89,7 @@ def run_demo(out_dir: str | Path, duration_s: float, sets: list[str], progress: 
     loop = run_closed_loop(out_dir, duration_s, sets, tee=True, show=progress)
     for error in loop.errors:
         yield f"error: {error}"
-    pending, alarm = loop.first("identification_pending"), loop.first("spoofing_alarm")
+    alarm = loop.first("spoofing_alarm")
     if alarm:
         yield (f"SemperFi: spoofing alarm at t = {alarm['t_rx_s']:.2f} s; the receiver waits for a maneuver instead of "
                f"guessing which peak is the attacker's")
@@ -108,7 +108,6 @@ def run_demo(out_dir: str | Path, duration_s: float, sets: list[str], progress: 
         yield (f"identification: peaks that do not follow the vehicle's motion on PRNs {adversarial}; peaks that do on "
                f"PRNs {legit}; {sum(not p['decided'] for p in peaks)} undecided")
     summary = loop.first("defense_summary") or {}
-    recovered = loop.first("recovered")
     t, err = loop.fix_errors_m("recovered")
     if len(t):
         yield (f"SemperFi: cancelled PRNs {summary.get('cancelled')}; {len(t)} recovered fixes from t = {t[0]:.1f} s, "

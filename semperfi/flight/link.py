@@ -17,11 +17,13 @@ Types, in the order of one identification round:
     "maneuver_done"     flight -> receiver  {"maneuver_id": str, "t_s": [...], "north_m": [...],
                                              "east_m": [...], "down_m": [...]}   (the IMU track)
     "verdict"           receiver -> flight  {"maneuver_id": str, "adversarial": bool, "peaks": [...]}
+    "heartbeat"         both ways           {}   (every HEARTBEAT_S: a peer silent for SILENT_S is gone)
 
 Each direction keeps its own strictly increasing ``seq``; a receiver of frames rejects a seq not above the last
 accepted one (replay) and a timestamp outside +-MAX_SKEW_S of its clock.  The key is pre-shared.  Any malformed,
-unauthenticated, replayed, truncated or oversized frame raises LinkError (logged); reads have a timeout so a
-silent or slow peer cannot stall the other side.
+unauthenticated, replayed, truncated or oversized frame raises LinkError (logged); every read has a deadline (a
+LinkPeer's is SILENT_S, kept open by the other end's heartbeats), so a silent or slow peer cannot stall the other
+side.
 """
 from __future__ import annotations
 
@@ -39,7 +41,9 @@ MAX_FRAME_BYTES = 1 << 20
 MAX_SKEW_S = 5.0
 LOG_REJECTED_FIRST, LOG_REJECTED_EVERY = 5, 1000
 MAX_SEQ_STEP = 1_000_000     # frames a peer may skip at once (it sends a few a minute; a TCP link loses none)
-TYPES = {"hello", "alarm", "maneuver_request", "maneuver_done", "verdict"}
+TYPES = {"hello", "alarm", "maneuver_request", "maneuver_done", "verdict", "heartbeat"}
+HEARTBEAT_S = 1.0            # how often a LinkPeer says it is there
+SILENT_S = 5.0               # a peer that said nothing for this long is gone (hung, or the network is)
 MAX_LINES_OF_SIGHT = 32
 MAX_REQUIRED_SPREAD_M = 50.0   # a maneuver under 50 m flown cannot spread further along a line of sight
 _MAC = 32
@@ -184,12 +188,19 @@ class LinkPeer:
         import queue
         import threading
         self.sock, self.codec = sock, Codec(key)
-        sock.settimeout(None)   # the reader waits as long as the peer is silent; a closed peer ends it
+        sock.settimeout(SILENT_S)   # the other end's heartbeats come every HEARTBEAT_S: silence this long is a loss
         self.closed: str | None = None
         self._queue: queue.Queue = queue.Queue()
         self._send_lock = threading.Lock()
+        self._stop = threading.Event()
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
+        self._beat = threading.Thread(target=self._heartbeat, daemon=True)
+        self._beat.start()
+
+    def _heartbeat(self) -> None:
+        while not self._stop.wait(HEARTBEAT_S) and self.closed is None:
+            self.send("heartbeat", {})
 
     @property
     def rejected(self) -> int:
@@ -214,13 +225,18 @@ class LinkPeer:
                 if n > MAX_FRAME_BYTES:
                     raise LinkError("oversized frame: the stream cannot be trusted any more")
                 frame = _recv_exact(self.sock, n)
+            except (socket.timeout, TimeoutError):
+                self.closed = f"the peer was silent for {SILENT_S:g} s (no heartbeat)"
+                return
             except (LinkError, OSError) as exc:
                 self.closed = str(exc) or type(exc).__name__
                 return
             try:
-                self._queue.put(self.codec.decode(frame))
+                message = self.codec.decode(frame)
             except LinkError:
-                pass              # counted (and logged, throttled) by the codec
+                continue          # counted (and logged, throttled) by the codec
+            if message[0] != "heartbeat":
+                self._queue.put(message)
 
     def send(self, msg_type: str, payload: dict) -> None:
         with self._send_lock:
@@ -245,6 +261,7 @@ class LinkPeer:
 
     def close(self) -> None:
         self.closed = self.closed or "closed"
+        self._stop.set()
         try:
             self.sock.shutdown(socket.SHUT_RDWR)
         except OSError:

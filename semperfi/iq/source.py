@@ -13,7 +13,6 @@ is a SourceError (a ValueError: one line), raised after the samples that did arr
 
 from __future__ import annotations
 
-import math
 import os
 import select
 import sys
