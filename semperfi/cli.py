@@ -234,8 +234,14 @@ def acquire(file, fs_hz, fmt, iq_swap, if_hz, prn_text, start_s, coherent_ms, no
               help="the flight side's authenticated link (semperfi companion): on an alarm it flies a maneuver and "
                    "sends the IMU track back")
 @click.option("--link-key", "link_key_path", type=click.Path(dir_okay=False), help="file holding the link's pre-shared key")
+@click.option("--mavlink-gps", "mavlink_gps_url", metavar="URL",
+              help="be an autopilot's GPS: every fix as MAVLink GPS_INPUT at 10 Hz (ArduPilot GPS1_TYPE 14) to "
+                   "udpout:HOST:PORT, tcp:HOST:PORT or a serial device; no fix while spoofing is suspected")
+@click.option("--nmea-out", "nmea_out_url", metavar="URL",
+              help="every fix as NMEA GGA+RMC at 10 Hz to tcp:HOST:PORT, udpout:HOST:PORT or a serial device "
+                   "(marked invalid while spoofing is suspected)")
 def run(file, fs_hz, fmt, iq_swap, if_hz, nav_path, out_dir, config_path, defense, adversarial, sets, skip_s,
-        duration_s, fs_out_hz, imu_path, link_addr, link_key_path) -> None:
+        duration_s, fs_out_hz, imu_path, link_addr, link_key_path, mavlink_gps_url, nmea_out_url) -> None:
     """Receive FILE (a recording, - for standard input, or rtl_tcp://HOST:PORT): acquisition, tracking, navigation,
     PVT; fixes.csv, NMEA, GPX, GeoJSON, RINEX observations, events.jsonl in --out."""
     import functools
@@ -249,18 +255,35 @@ def run(file, fs_hz, fmt, iq_swap, if_hz, nav_path, out_dir, config_path, defens
         cfg = _receiver_config(config_path, sets)
         imu = read_imu_csv(imu_path).shifted(-skip_s) if imu_path else None   # its t_s counts from FILE's start
         link = _flight_link(link_addr, link_key_path)
+        streams = _fix_streams(mavlink_gps_url, nmea_out_url)
         try:
             summary = run_file(file, _sample_format(fmt, iq_swap), fs_hz, if_hz, cfg, out_dir, nav_path,
                                live=sys.stderr.isatty(),
                                receiver_factory=functools.partial(DefendedReceiver, imu_track=imu, flight_link=link),
-                               skip_s=skip_s, duration_s=duration_s, fs_out_hz=fs_out_hz)
+                               skip_s=skip_s, duration_s=duration_s, fs_out_hz=fs_out_hz,
+                               fix_streams=[s for s, _ in streams])
         finally:
             if link is not None:
                 link.close()
+            for stream, sink in streams:
+                stream.close()
+                sink.close()
     except (ValueError, OSError) as exc:
         _fail(str(exc), getattr(exc, "exit_code", EXIT_BAD_INPUT))
     _print_run_summary(summary)
+    for stream, sink in streams:
+        click.echo(f"  {type(sink).__name__}: {stream.sent} messages sent, {stream.failed} failed")
     _fail_after(summary)
+
+
+def _fix_streams(mavlink_gps_url, nmea_out_url) -> list:
+    """The fix streams asked for: (FixStream, its sink), each opened now so a wrong address fails before the run."""
+    from .receiver.fix_stream import FixStream
+    from .receiver.gps_input import MavlinkGpsOut
+    from .receiver.nmea_out import NmeaOut
+    sinks = ([MavlinkGpsOut(mavlink_gps_url)] if mavlink_gps_url else []) + \
+        ([NmeaOut(nmea_out_url)] if nmea_out_url else [])
+    return [(FixStream(sink.send), sink) for sink in sinks]
 
 
 @main.command()

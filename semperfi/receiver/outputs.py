@@ -34,7 +34,7 @@ from pynmeagps.nmeatypes_core import GET
 from ..gps.constants import SECONDS_PER_WEEK
 from ..gps.geometry import enu_rotation
 from ..gps.time import GPS_EPOCH
-from .types import TIME_STATES, Fix
+from .types import TIME_STATES, Fix, vouched
 from .integrity import RAIM_STATES
 from .rinex_obs import ObsEpoch, RinexObsWriter
 
@@ -167,8 +167,11 @@ _NAV_STATUS = {"nominal": "S", "recovered": "S", "rectified": "C", "recovering":
 
 
 def nmea_sentences(fix: Fix, leap_s: int = DEFAULT_LEAP_S) -> tuple[bytes, bytes]:
-    """GGA and RMC (talker GP) for a fix, each a full sentence with checksum and CRLF."""
+    """GGA and RMC (talker GP) for a fix, each a full sentence with checksum and CRLF. A fix the receiver cannot
+    vouch for (spoofing suspected, integrity failed) is marked invalid (GGA quality 0, RMC status V): a plain NMEA
+    consumer, an autopilot's among them, must not use it."""
     _check_fix(fix)
+    good = vouched(fix)
     # NMEA time has two decimals and pynmeagps truncates; round to 10 ms first so 12.999999 s reads 13.00
     tow_cs = round(fix.gps_tow_s * 100.0) / 100.0
     week = int(fix.gps_week)
@@ -178,12 +181,13 @@ def nmea_sentences(fix: Fix, leap_s: int = DEFAULT_LEAP_S) -> tuple[bytes, bytes
     # GGA wants altitude above mean sea level plus the geoid separation. We carry no geoid model, so, as GNSS-SDR
     # does, the separation is 0 and the altitude field holds the height above the WGS 84 ellipsoid.
     gga = NMEAMessage("GP", "GGA", GET, hpnmeamode=True,
-                      time=utc.time(), lat=fix.lat_deg, lon=fix.lon_deg, quality=1, numSV=int(fix.n_sats),
+                      time=utc.time(), lat=fix.lat_deg, lon=fix.lon_deg, quality=1 if good else 0,
+                      numSV=int(fix.n_sats),
                       HDOP=round(float(fix.hdop), 2), alt=round(float(fix.height_m), 3), altUnit="M",
                       sep=0.0, sepUnit="M", diffAge="", diffStation="")
     speed_m_s, course_deg = horizontal_velocity(fix)
     rmc = NMEAMessage("GP", "RMC", GET, hpnmeamode=True,
-                      time=utc.time(), status="A", lat=fix.lat_deg, lon=fix.lon_deg,
+                      time=utc.time(), status="A" if good else "V", lat=fix.lat_deg, lon=fix.lon_deg,
                       spd=round(speed_m_s * KNOTS_PER_M_S, 3),
                       cog=round(course_deg, 2) if speed_m_s >= COURSE_MIN_SPEED_M_S else "",
                       date=utc.date(), mv="", mvEW="", posMode="A",

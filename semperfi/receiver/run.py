@@ -47,12 +47,13 @@ def _live_table(receiver: Receiver, t_s: float, total_s: float | None = None):
 def run_file(path: str | Path, fmt: str | None, fs_hz: float | None, if_hz: float | None, cfg: dict,
              out_dir: str | Path, nav_path: str | None = None, live: bool = False, receiver_hook=None,
              receiver_factory=Receiver, skip_s: float = 0.0, duration_s: float | None = None,
-             fs_out_hz: float | None = None, stop=None) -> RunSummary:
+             fs_out_hz: float | None = None, stop=None, fix_streams=()) -> RunSummary:
     """Run a receiver over a file, `-` (standard input) or rtl_tcp://HOST:PORT; ValueError (one line) for bad input,
     NoSignal when nothing acquires. skip_s, duration_s cut a window; fs_out_hz decimates to a processing rate.
 
     receiver_factory builds the receiver (the conventional chain by default; the defended one wraps it);
-    stop(receiver) -> bool, asked after each chunk, ends the run early (a harness that wants only the first fix)."""
+    stop(receiver) -> bool, asked after each chunk, ends the run early (a harness that wants only the first fix);
+    fix_streams (fix_stream.FixStream: an autopilot's GPS_INPUT, NMEA to a port) get every fix too."""
     source = open_source(path, fmt, fs_hz, if_hz, skip_s=skip_s, duration_s=duration_s, fs_out_hz=fs_out_hz)
     assisted = AssistedNav.from_rinex(nav_path) if nav_path else None
     out_dir = Path(out_dir)
@@ -63,7 +64,12 @@ def run_file(path: str | Path, fmt: str | None, fs_hz: float | None, if_hz: floa
     interrupted = False
     total_s = None if source.expected_samples is None else source.expected_samples / source.fs_hz
     with OutputWriter(out_dir, cfg["output"]["formats"]) as out:
-        receiver = receiver_factory(cfg, source.fs_hz, source.if_hz, assisted, on_fix=out.write, events=_Loud(out),
+        def on_fix(fix: Fix) -> None:
+            out.write(fix)
+            for stream in fix_streams:
+                stream.update(fix)
+
+        receiver = receiver_factory(cfg, source.fs_hz, source.if_hz, assisted, on_fix=on_fix, events=_Loud(out),
                                     week_hint=_week_hint(source, assisted), on_observations=out.write_observations)
         if receiver_hook is not None:
             receiver_hook(receiver)

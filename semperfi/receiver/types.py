@@ -59,3 +59,9 @@ class Fix:
     tpl_ns: float = float("nan")
     clock_sigma_ns: float = float("nan")  # 1 sigma of the clock bias, fault-free (the clock model's measurement noise)
     time_state: str = "unverified"  # nominal | holdover | unverified (TIME_STATES): whether tpl_ns bounds the time
+
+
+def vouched(fix: Fix) -> bool:
+    """Whether a fix may be handed on as a position to use (an autopilot's GPS, a valid NMEA fix): called good, and
+    its ranges not failing the integrity test."""
+    return fix.state in TRUSTED_STATES and fix.raim != "fail"
