@@ -159,7 +159,8 @@ def _parse_prns(text: str) -> list[int]:
 @click.option("--iq-swap", is_flag=True, help="the front end stores Q before I (spectral inversion)")
 @click.option("--if", "if_hz", type=float, help="intermediate frequency, Hz")
 @click.option("--prn", "prn_text", default="1-32", show_default=True, help="PRNs to search")
-@click.option("--start", "start_s", type=float, default=0.0, show_default=True, help="seconds into the file")
+@click.option("--skip", "--start", "start_s", type=float, default=0.0, show_default=True,
+              help="seconds of input to skip (--start: the same)")
 @click.option("--coherent-ms", type=click.IntRange(1, 20), default=2, show_default=True)
 @click.option("--noncoherent", type=click.IntRange(1, 1000), default=5, show_default=True)
 @click.option("--doppler-max", "doppler_max_hz", type=click.FloatRange(0.0, 50000.0), default=6000.0,

@@ -15,6 +15,7 @@ import numba
 import numpy as np
 
 TAPS_PER_PHASE = 16    # taps = 2 * TAPS_PER_PHASE * M + 1: ~60 dB stop band from 0.5 fs_out, even delay
+MIN_PROCESSING_HZ = 2.1e6   # C/A's main lobe (+-1.023 MHz) and a little margin
 PASSBAND = 0.8         # of the output Nyquist band kept flat; GPS L1 C/A's main lobe needs +-1.023 MHz
 
 
@@ -22,13 +23,14 @@ def decimation_factor(fs_in_hz: float, fs_out_hz: float) -> int:
     """The integer M with fs_in = M * fs_out, or one ValueError line."""
     if not (math.isfinite(fs_in_hz) and math.isfinite(fs_out_hz)) or fs_in_hz <= 0 or fs_out_hz <= 0:
         raise ValueError(f"sample rates must be positive, got {fs_in_hz!r} -> {fs_out_hz!r}")
+    if fs_out_hz < MIN_PROCESSING_HZ:
+        raise ValueError(f"processing rate {fs_out_hz:g} Hz is too low for GPS L1 C/A (at least 2.1 MHz)")
     ratio = fs_in_hz / fs_out_hz
     m = int(round(ratio))
     if m < 1 or abs(ratio - m) > 1e-9 * ratio:
+        near = max(1, min(m, math.floor(fs_in_hz / MIN_PROCESSING_HZ)))   # the closest rate that would do
         raise ValueError(f"processing rate {fs_out_hz:g} Hz must divide the file's rate {fs_in_hz:g} Hz "
-                         f"(e.g. {fs_in_hz / max(2, math.ceil(ratio)):g} Hz)")
-    if fs_out_hz < 2.1e6:
-        raise ValueError(f"processing rate {fs_out_hz:g} Hz is too low for GPS L1 C/A (at least 2.1 MHz)")
+                         f"(e.g. {fs_in_hz / near:g} Hz)")
     return m
 
 

@@ -24,6 +24,7 @@ FIX_NO_FIX, FIX_3D = 1, 3          # GPS_FIX_TYPE (0 would say "no GPS connected
 UERE_M = 5.0               # accuracy per unit of DOP when a fix has no protection level (no redundancy)
 SPEED_ACCURACY_M_S = 0.3   # Doppler velocity at 40-50 dB-Hz: a few cm/s per range, times a DOP of a few
 GPS_COMPONENT_ID = 220     # MAV_COMP_ID_GPS
+SERIAL_WRITE_TIMEOUT_S = 1.0
 _IGNORE_YAW = 0            # GPS_INPUT has no yaw flag: yaw 0 means "unknown"
 
 
@@ -77,9 +78,9 @@ class MavlinkGpsOut:
                                                    dialect="common", autoreconnect=True)
         except Exception as exc:   # pymavlink raises whatever its transport raises
             raise ValueError(f"cannot open the autopilot's GPS link {url}: {exc}") from None
-        sock = getattr(self.conn, "port", None)
-        if hasattr(sock, "settimeout"):
-            sock.settimeout(1.0)   # a send never waits on the autopilot longer than this
+        port = getattr(self.conn, "port", None)
+        if hasattr(port, "write_timeout"):
+            port.write_timeout = SERIAL_WRITE_TIMEOUT_S   # pymavlink's sockets are non-blocking: a serial port is not
 
     def send(self, fix: Fix | None, unix_time_s: float) -> None:
         """FixStream's sink: the latest fresh fix (None: none) as one GPS_INPUT."""
