@@ -33,7 +33,6 @@ TWIN_MATCH_CHIPS = 0.25   # an examination's code phase (2 ms coherent, interpol
 LEFT_MIN_THRESHOLDS = 2.0
 RELEASE_MARGIN_S = 2e-3   # a dropped cancellation leaves the samples cleaned this much later (held-back period)
 MAX_SWAPS = 2          # a PRN whose cancelled peak is found legitimate this often is given up
-NEAR_SPAN_HZ = 1000.0   # an examination between full searches looks this far either side of a PRN's known Doppler
 EXAMINE_MAX_PEAKS = 16  # a strong spoofer's Doppler and code sidelobes are local maxima too: room for its twin
 
 
@@ -140,15 +139,13 @@ class SpoofGuard:
         self._cleaned += cleaned.size
         return cleaned
 
-    def _acquire(self, window: np.ndarray, prns, center_hz: float, span_hz: float, near_hz=None):
-        """Every examination's search: the window's 2 ms x EXAMINE_NONCOHERENT, 333 Hz bins (a PRN in near_hz:
-        within NEAR_SPAN_HZ of its Doppler there)."""
+    def _acquire(self, window: np.ndarray, prns, center_hz: float, span_hz: float):
+        """Every examination's search: the window's 2 ms x EXAMINE_NONCOHERENT, 333 Hz bins."""
         a = self.cfg["acquisition"]
         n = int(round(self.fs_hz * 1e-3)) * 2 * EXAMINE_NONCOHERENT
         return acquire(window[:n], self.fs_hz, prns, DopplerGrid(center_hz, span_hz, 333.0),
                        self.if_hz, 2, EXAMINE_NONCOHERENT, a["pfa"], max(EXAMINE_MAX_PEAKS, a["max_peaks"]),
-                       excise=True,   # a tone is no satellite, and no spoofer either
-                       near_hz=near_hz, near_span_hz=NEAR_SPAN_HZ)
+                       excise=True)   # a tone is no satellite, and no spoofer either
 
     def _look(self) -> tuple[np.ndarray, int]:
         """The window an examination searches, and its first sample's absolute index. Once spoofed signals are
@@ -175,11 +172,7 @@ class SpoofGuard:
         prns = list(range(1, 33)) if full else sorted(self.present_prns | self.extra_prns)
         if full:
             self._next_full = self._seen + int(self.d["full_search_every_s"] * self.fs_hz)
-        # between full searches, a PRN seen before is looked at around its Doppler: a spoofer that wants to pass for
-        # its satellite sits beside it (a synchronized one within Hz; one claiming a motion, within the Dopplers a
-        # vehicle's speed makes); one farther off is the full search's, every full_search_every_s
-        near = None if full else {p: c.best.doppler_hz for p, c in self._last_cafs.items() if c.best is not None}
-        cafs = self._acquire(x, prns, 0.0, self.cfg["acquisition"]["doppler_max_hz"], near)
+        cafs = self._acquire(x, prns, 0.0, self.cfg["acquisition"]["doppler_max_hz"])
         # a strong attacker's cross-talk puts peaks on absent PRNs: examining them every look would cost the most
         self.present_prns |= {p for p, c in cafs.items() if examinable(c.best, c, cafs, self.detector.cfg, self.fs_hz)}
         self._last_cafs.update(cafs)

@@ -344,11 +344,6 @@ def mix(legit: Path, spoof: Path | None, out: Path, case: Case) -> Path:
     return out
 
 
-def horizontal_error_m(x_m: float, y_m: float, z_m: float, place: Place) -> float:
-    e, n, _ = enu_errors(np.zeros(1), np.array([x_m, y_m, z_m]), Truth(place.lat_deg, place.lon_deg, place.height_m))[0]
-    return float(math.hypot(e, n))
-
-
 def score(fixes_csv: Path, place: Place, last_s: float = 10.0, bad_m: float = 10.0, motion: str = "") -> dict:
     """What a receiver made of a case: horizontal error over the last seconds, first fix, wrong fixes called good,
     and the mean east and north deviation (absolute) of the fixes called good while under attack (the paper's UTM

@@ -303,11 +303,6 @@ class DecodedSubframe:
         """The 192 data bits of words 3-10, as pack/unpack take them."""
         return self.data_bits[48:]
 
-    @property
-    def next_subframe_tow_s(self) -> int:
-        """SV time of week (s) at the start of the next subframe, i.e. at the end of this one."""
-        return 6 * self.tow_count_next
-
 
 def decode_subframe(bits300, d29_prev: int = 0, d30_prev: int = 0) -> DecodedSubframe:
     """Decode 300 received bits aligned on a preamble; d29_prev, d30_prev are the last two bits before them."""

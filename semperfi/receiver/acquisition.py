@@ -235,10 +235,8 @@ def noncoherent_power(coh):
 def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: DopplerGrid = DopplerGrid(),
             if_hz: float = 0.0, coherent_ms: int = 1, noncoherent: int = 1, pfa: float = 1e-3,
             max_peaks: int = 8, excise: bool = False,
-            tail_threshold: bool = False, near_hz: dict[int, float] | None = None,
-            near_span_hz: float = 1000.0) -> dict[int, Caf]:
-    """Search each PRN over the Doppler grid and every code phase (a PRN in near_hz: only the grid's bins within
-    near_span_hz of its Doppler there, from the same shared spectra: a look for what sits beside a known signal).
+            tail_threshold: bool = False) -> dict[int, Caf]:
+    """Search each PRN over the Doppler grid and every code phase.
 
     Uses coherent_ms * noncoherent ms of samples from the start; with `excise`, DC and narrowband lines are
     excised first (`interference.excise_narrowband`), and when there were any, the threshold is at least the tail
@@ -272,18 +270,10 @@ def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: Dopple
     prns = list(prns)
     fft_workers = 1 if len(prns) > 1 else cores()   # several PRNs: one per thread
 
-    def rows_of(key: int) -> np.ndarray:
-        if near_hz is None or key not in near_hz:
-            return np.arange(dopplers.size)
-        rows = np.nonzero(np.abs(dopplers - near_hz[key]) <= near_span_hz)[0]
-        return rows if rows.size >= 3 else np.arange(dopplers.size)   # a Doppler off the grid: search it all
-
     def power_of(key: int) -> np.ndarray:
-        """|R|^2 over the noise floor for one code, on its rows of the grid."""
-        rows = rows_of(key)
-        own = spectra if rows.size == dopplers.size else spectra[rows]
-        work = np.multiply(own, _local_replica_fft(key, n_ms, fs_hz), out=scratch("acquisition", own.shape,
-                                                                                  np.complex64))
+        """|R|^2 over the noise floor for one code."""
+        work = np.multiply(spectra, _local_replica_fft(key, n_ms, fs_hz), out=scratch("acquisition", spectra.shape,
+                                                                                      np.complex64))
         coh = scipy.fft.ifft(work, axis=2, overwrite_x=True, workers=fft_workers)   # in place
         raw = noncoherent_power(coh)
         # the noise floor from every MEDIAN_STRIDE-th code phase: the same median to a fraction of a percent
@@ -303,19 +293,18 @@ def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: Dopple
 
     def caf_of(prn: int) -> Caf:
         power = power_of(prn)
-        dopplers_prn = dopplers[rows_of(prn)]
         thr = thr_floor
         if tail_threshold:
-            thr = max(thr, _empirical_threshold(power, pfa_cell, dopplers_prn, coherent_ms * CA_CODE_PERIOD_S))
+            thr = max(thr, _empirical_threshold(power, pfa_cell, dopplers, coherent_ms * CA_CODE_PERIOD_S))
         peaks = []
         for row, col in find_peaks(power, thr, max_peaks):
             dc = _interp(np.sqrt(power[row, col - 1]), np.sqrt(power[row, col]),
                          np.sqrt(power[row, (col + 1) % n_cols]))
             dd = 0.0
-            if 0 < row < dopplers_prn.size - 1:
+            if 0 < row < dopplers.size - 1:
                 dd = _interp(power[row - 1, col], power[row, col], power[row + 1, col])
             snr = max(float(power[row, col]) - 1.0, 1e-3)
-            doppler_hz = float(dopplers_prn[row] + dd * grid.step_hz)
+            doppler_hz = float(dopplers[row] + dd * grid.step_hz)
             # The peak sits where the code is at mid-block; the code runs fast by doppler/1540 chip/s, so step
             # back half a block to the first sample (0.17 chip at 2.6 kHz over 200 ms).
             chips = (col + dc) * CA_CODE_LENGTH_CHIPS / n_cols \
@@ -325,7 +314,7 @@ def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: Dopple
         ratio2 = second_peak_ratio(power, *np.unravel_index(int(np.argmax(power)), power.shape),
                                    n_cols / CA_CODE_PERIOD_S)
         # 32 PRNs' CAFs at 5 MSa/s would hold 24 MB: only the detections keep theirs (for plots)
-        return Caf(prn, dopplers_prn, code_chips, power if peaks else None, thr, coherent_ms * CA_CODE_PERIOD_S,
+        return Caf(prn, dopplers, code_chips, power if peaks else None, thr, coherent_ms * CA_CODE_PERIOD_S,
                    tuple(peaks), ratio2, interference, float(np.mean(power)))
 
     return dict(zip(prns, run_each(caf_of, prns)))

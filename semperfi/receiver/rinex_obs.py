@@ -29,13 +29,6 @@ class ObsEpoch:
     sats: dict[int, tuple[float, float, float, float]]
 
 
-def epoch_from_observations(gps_week: int, gps_tow_s: float, observations, phase_cycles: dict | None = None):
-    """An ObsEpoch from receiver Observations (their prn, pseudorange_m, doppler_hz, cn0_dbhz)."""
-    phase_cycles = phase_cycles or {}
-    return ObsEpoch(gps_week, gps_tow_s, {o.prn: (o.pseudorange_m, phase_cycles.get(o.prn, math.nan), o.doppler_hz,
-                                                  o.cn0_dbhz) for o in observations})
-
-
 def _gps_datetime(week: int, tow_s: float) -> _dt.datetime:
     return GPS_EPOCH + _dt.timedelta(weeks=int(week), seconds=float(tow_s))
 
