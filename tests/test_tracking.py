@@ -148,3 +148,19 @@ def test_a_carrier_frequency_step_is_followed_not_lost():
         dopplers.append((end / fs, ch.doppler_at(0)))
     late = np.array([d for s, d in dopplers if s > 3.0])
     assert np.all(np.abs(late - (dop + step_hz)) < 3.0), late
+
+
+def test_channels_run_on_threads_give_what_they_give_one_after_another(monkeypatch):
+    """The suite's workers run single-threaded (conftest): the threaded path is checked here, results in order."""
+    import numpy as np
+
+    from semperfi.receiver import workers
+    monkeypatch.setenv(workers.THREADS_ENV, "2")
+    if workers.cores() < 2:
+        import pytest
+        pytest.skip("one core: no threads to check")
+    x = np.random.default_rng(4).normal(size=(6, 50_000))
+    threaded = workers.run_each(lambda row: float(np.sum(np.cumsum(row) ** 2)), list(x))
+    monkeypatch.setenv(workers.THREADS_ENV, "1")
+    serial = workers.run_each(lambda row: float(np.sum(np.cumsum(row) ** 2)), list(x))
+    assert threaded == serial

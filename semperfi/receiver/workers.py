@@ -16,12 +16,17 @@ T, R = TypeVar("T"), TypeVar("R")
 _POOL: ThreadPoolExecutor | None = None
 
 
+THREADS_ENV = "SEMPERFI_THREADS"   # at most this many threads (the test suite's workers share the cores between them)
+
+
 def cores() -> int:
-    """The cores this process may run on (a container's CPU set, not the host's count)."""
+    """The cores this process may run on (a container's CPU set, not the host's count), at most $SEMPERFI_THREADS."""
     try:
-        return len(os.sched_getaffinity(0))
+        n = len(os.sched_getaffinity(0))
     except AttributeError:   # not on Linux
-        return os.cpu_count() or 1
+        n = os.cpu_count() or 1
+    cap = os.environ.get(THREADS_ENV, "")
+    return max(1, min(n, int(cap))) if cap.isdigit() and int(cap) > 0 else n
 
 
 def run_each(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
