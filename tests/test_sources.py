@@ -47,7 +47,7 @@ def test_a_pipe_gives_the_same_samples_as_the_file_and_counts_a_partial_sample(t
 
 
 @pytest.mark.parametrize("bad, word", [({"skip_s": -1.0}, "--skip"), ({"skip_s": 1.0}, "past the end"),
-                                       ({"duration_s": 0.0}, "--duration"), ({"fs_out_hz": 1.5e6}, "divide"),
+                                       ({"duration_s": 0.0}, "--duration"), ({"fs_out_hz": 2.2e6}, "divide"),
                                        ({"fs_out_hz": 1e6}, "too low")])
 def test_bad_windows_and_rates_are_one_line(tmp_path, bad, word):
     _noise_file(tmp_path / "n.bin")
