@@ -69,9 +69,12 @@ def hover_bias(imu_t_s, accel_body_mps2, gyro_body_rps, att_t_s, att_rpy_rad, ve
     inside = (t >= ta[0]) & (t <= ta[-1])
     gyro_bias = np.polyfit(t[inside] - t[0], (gyro_angle - turned_at)[inside], 1)[0]
     at = np.clip(np.searchsorted(ta, t, side="right") - 1, 0, len(ta) - 1)   # the attitude last reported
-    spec = np.einsum("nij,nj->ni", c[at], f)
-    accel = (spec + GRAVITY_NED_MPS2).mean(axis=0) - np.asarray(vel_change_ned_mps, float) / (t[-1] - t[0])
-    return HoverBias(gyro_bias, accel)
+    unexplained = np.einsum("nij,nj->ni", c[at], f) + GRAVITY_NED_MPS2
+    accel = unexplained.mean(axis=0) - np.asarray(vel_change_ned_mps, float) / (t[-1] - t[0])
+    # a noisy accelerometer's mean over a short hover is mostly its noise: taken off only where it stands out of
+    # that noise (three standard errors), else the correction adds more error than it removes
+    noise = unexplained.std(axis=0) / np.sqrt(len(t))
+    return HoverBias(gyro_bias, np.where(np.abs(accel) > 3 * noise, accel, 0.0))
 
 
 def _rotation_vector(c: np.ndarray) -> np.ndarray:

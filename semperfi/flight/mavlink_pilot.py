@@ -219,6 +219,8 @@ class Pilot:
     def prepare(self) -> VehicleStatus:
         """Connect, ask for the streams and check the vehicle can maneuver: armed, in the air, high enough."""
         self.connect()
+        if not self.tm.armed:   # said first: a vehicle on the bench may never stream a position
+            raise PilotError("vehicle is disarmed: arm it and take off before a maneuver")
         self.request_streams()
         self._wait_for({"HEARTBEAT"}, "HEARTBEAT")   # armed state and mode as of now
         tm, low = self.tm, self.limits.min_altitude_m
