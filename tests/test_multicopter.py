@@ -22,7 +22,7 @@ def _rpy(c):
 def _hover(r, sel):
     """What the flight side measures in a hover: the IMU against the autopilot's attitude (true, here)."""
     return hover_bias(r.imu_t_s[sel], r.accel_body_mps2[sel], r.gyro_body_rps[sel], r.t_s[sel],
-                      [_rpy(c) for c in r.c_nb[sel]], r.vel_ned_mps[sel][-1] - r.vel_ned_mps[sel][0])
+                      [_rpy(c) for c in r.c_nb[sel]], r.t_s[sel], r.vel_ned_mps[sel])
 
 
 def test_the_vehicle_faces_its_travel_and_tilts_when_it_accelerates():

@@ -96,6 +96,9 @@ def test_a_maneuver_flown_on_arducopter_is_tracked_within_2_m_by_the_imu(sitl):
     obs.set_mode(LOITER)   # the flight side must give it back to LOITER
     assert obs.wait_mode(LOITER)
     row = script.fly_one(s.url(1), obs, rng=random.Random(11))
+    import os, pickle
+    if os.environ.get("SITL_DUMP"):
+        pickle.dump(row, open(os.environ["SITL_DUMP"], "wb"))
     assert obs.wait_mode(LOITER), f"left in mode {obs.custom_mode}"
     m = row["maneuver"]
     assert m.duration_s >= 10.0 and row["height_m"] > 25.0

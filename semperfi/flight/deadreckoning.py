@@ -52,11 +52,12 @@ def bias_between(before: HoverBias, after: HoverBias, before_t_s: float, after_t
     return HoverBias(before.gyro_bias_rps + drift * (start_t_s - before_t_s), before.accel_residual_ned_mps2, drift)
 
 
-def hover_bias(imu_t_s, accel_body_mps2, gyro_body_rps, att_t_s, att_rpy_rad, vel_change_ned_mps) -> HoverBias:
+def hover_bias(imu_t_s, accel_body_mps2, gyro_body_rps, att_t_s, att_rpy_rad, vel_t_s, vel_ned_mps) -> HoverBias:
     """The IMU's biases from a hover (a few seconds, heading held, nearly still): the gyro's is the slope of the
     angle it integrates beyond the angle the autopilot's attitude (ATTITUDE) turned through over the same span (a
     least-squares line: the autopilot's attitude is noisy sample to sample); the accelerometer's, with the
-    autopilot's tilt error, is the mean of C f + g beyond the mean acceleration of the hover's velocity change."""
+    autopilot's tilt error, is the mean of C f + g beyond the mean acceleration of the hover's velocity change (the
+    autopilot's velocities, vel_ned_mps at vel_t_s, taken at the first and last IMU samples' times)."""
     from .telemetry import c_nb
     t, f, w = np.asarray(imu_t_s, float), np.asarray(accel_body_mps2, float), np.asarray(gyro_body_rps, float)
     ta, rpy = np.asarray(att_t_s, float), np.asarray(att_rpy_rad, float)
@@ -70,10 +71,13 @@ def hover_bias(imu_t_s, accel_body_mps2, gyro_body_rps, att_t_s, att_rpy_rad, ve
     gyro_bias = np.polyfit(t[inside] - t[0], (gyro_angle - turned_at)[inside], 1)[0]
     at = np.clip(np.searchsorted(ta, t, side="right") - 1, 0, len(ta) - 1)   # the attitude last reported
     unexplained = np.einsum("nij,nj->ni", c[at], f) + GRAVITY_NED_MPS2
-    accel = unexplained.mean(axis=0) - np.asarray(vel_change_ned_mps, float) / (t[-1] - t[0])
+    tv, v = np.asarray(vel_t_s, float), np.asarray(vel_ned_mps, float)
+    dv = np.array([np.interp(t[-1], tv, v[:, k]) - np.interp(t[0], tv, v[:, k]) for k in range(3)])
+    accel = unexplained.mean(axis=0) - dv / (t[-1] - t[0])
     # a noisy accelerometer's mean over a short hover is mostly its noise: taken off only where it stands out of
-    # that noise (three standard errors), else the correction adds more error than it removes
-    noise = unexplained.std(axis=0) / np.sqrt(len(t))
+    # that noise (three standard errors), else the correction adds more error than it removes. The noise is what
+    # changes sample to sample: the hover's own slow swaying is no noise (its velocity change accounts for it)
+    noise = np.diff(unexplained, axis=0).std(axis=0) / np.sqrt(2 * len(t))
     return HoverBias(gyro_bias, np.where(np.abs(accel) > 3 * noise, accel, 0.0))
 
 

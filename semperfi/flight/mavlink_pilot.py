@@ -32,6 +32,8 @@ SETPOINT_HZ = 10.0
 VELOCITY_AND_YAW = 0b0000_1001_1100_0111  # type_mask: use vx, vy, vz and yaw; ignore position, accel, yaw rate
 HOVER_S = 3.0                             # the bias-measuring hover before the maneuver (vehicle time)
 HOVER_MAX_SPEED_MPS = 1.0                 # a vehicle drifting faster than this in a zero-velocity hover disobeys
+STILL_MPS = 0.5                           # the hover starts once the vehicle has been this slow for STILL_S
+STILL_S = 0.5
 STOPPED_MPS = 0.2
 SETTLE_MAX_S = 6.0
 COMMAND_RETRY_S = 1.0                     # a command without an ACK after this is sent again
@@ -293,18 +295,34 @@ class Pilot:
 
     def _hover(self, yaw_rad: float) -> tuple[HoverBias, float]:
         """Zero velocity with the heading held for HOVER_S; the IMU's biases it measured, and its mid-time."""
+        self._settle(yaw_rad)
         i0, a0, p0 = len(self._imu), len(self._att), len(self._pos)
         t0 = self._hover_t0 = self._imu_time_now()
         self._stream(lambda t: np.zeros(3), yaw_rad, until=lambda t: t >= t0 + HOVER_S, guard=self._hovering)
-        imu, att, pos = self._imu[max(i0 - 1, 0):], self._att[a0:], self._pos[p0:]
+        imu, att, pos = self._imu[max(i0 - 1, 0):], self._att[a0:], self._pos[max(p0 - 1, 0):]
         if len(pos) < 2:
             raise PilotError(f"no LOCAL_POSITION_NED during the {HOVER_S:g} s hover")
         try:
             bias = hover_bias([s[0] for s in imu], [s[1] for s in imu], [s[2] for s in imu], [a[0] for a in att],
-                              [a[1] for a in att], pos[-1][2] - pos[0][2])
+                              [a[1] for a in att], [p[0] for p in pos], [p[2] for p in pos])
         except ValueError as exc:
             raise PilotError(f"hover: {exc}") from None
         return bias, 0.5 * (imu[0][0] + imu[-1][0])
+
+    def _settle(self, yaw_rad: float) -> None:
+        """Zero velocity until the vehicle is still (a hover that is still braking measures its braking, not the
+        IMU's biases), for SETTLE_MAX_S at most."""
+        t0 = self._hover_t0 = self._imu_time_now()
+        state = {}
+
+        def still(t: float) -> bool:
+            if self._stopped(t, math.inf, state, STILL_MPS):
+                return True
+            if t - t0 > SETTLE_MAX_S:
+                raise PilotError(f"vehicle does not hold still in GUIDED ({np.linalg.norm(self.tm.vel_ned_mps):.1f} "
+                                 f"m/s after {SETTLE_MAX_S:g} s of zero velocity)")
+            return False
+        self._stream(lambda t: np.zeros(3), yaw_rad, until=still, guard=lambda t: self._fit())
 
     def _imu_time_now(self) -> float:
         """The vehicle time of the next IMU sample."""
@@ -370,10 +388,10 @@ class Pilot:
             raise PilotError(f"vehicle does not follow the setpoints ({off:.1f} m/s off the plan for "
                              f"{t_man - self._obey_since:.1f} s)")
 
-    def _stopped(self, t: float, plan_end_s: float, state: dict) -> bool:
-        moving = float(np.linalg.norm(self.tm.vel_ned_mps)) > STOPPED_MPS
+    def _stopped(self, t: float, plan_end_s: float, state: dict, below_mps: float = STOPPED_MPS) -> bool:
+        moving = float(np.linalg.norm(self.tm.vel_ned_mps)) > below_mps
         state["since"] = None if moving else (state.get("since") or t)
-        return (state["since"] is not None and t - state["since"] > 0.5) or t - plan_end_s > SETTLE_MAX_S
+        return (state["since"] is not None and t - state["since"] > STILL_S) or t - plan_end_s > SETTLE_MAX_S
 
     def _hold(self) -> None:
         """Zero velocity, heading free: a few setpoints so the vehicle stops whatever it was told last."""
