@@ -30,7 +30,7 @@ from .telemetry import IMU_FALLBACK, MSG_ID, STREAMS_HZ, Telemetry, TelemetryErr
 GUIDED = 4
 SETPOINT_HZ = 10.0
 VELOCITY_AND_YAW = 0b0000_1001_1100_0111  # type_mask: use vx, vy, vz and yaw; ignore position, accel, yaw rate
-HOVER_S = 3.0                             # the bias-measuring hover before the maneuver (vehicle time)
+HOVER_S = 3.0                             # the bias-measuring hovers before and after the maneuver (vehicle time)
 HOVER_MAX_SPEED_MPS = 1.0                 # a vehicle drifting faster than this in a zero-velocity hover disobeys
 STILL_MPS = 0.5                           # the hover starts once the vehicle has been this slow for STILL_S
 STILL_S = 0.5
