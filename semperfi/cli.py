@@ -401,8 +401,10 @@ def _print_run_summary(summary) -> None:
 @click.option("--heading", "heading_deg", type=click.FloatRange(-360.0, 360.0), default=0.0, show_default=True)
 @click.option("--time-scale", type=click.FloatRange(0.01, 100.0), default=1.0, show_default=True,
               help="vehicle seconds per wall second")
-def vehicle(port, seed, altitude_m, heading_deg, time_scale) -> None:
-    """A simulated multicopter behind a MAVLink endpoint (UDP 127.0.0.1:PORT), as ArduCopter in GUIDED obeys it."""
+@click.option("--on-ground", is_flag=True, help="disarmed on the ground (it never takes off), not airborne")
+def vehicle(port, seed, altitude_m, heading_deg, time_scale, on_ground) -> None:
+    """A simulated multicopter behind a MAVLink endpoint (UDP 127.0.0.1:PORT), as ArduCopter in GUIDED obeys it:
+    it streams only what SET_MESSAGE_INTERVAL asks for, and turns to face its travel unless given a heading."""
     import math
     import threading
 
@@ -410,10 +412,11 @@ def vehicle(port, seed, altitude_m, heading_deg, time_scale) -> None:
 
     try:
         v = MavlinkVehicle(port, seed=seed, altitude_m=altitude_m, heading_rad=math.radians(heading_deg),
-                           time_scale=time_scale)
+                           time_scale=time_scale, airborne=not on_ground)
     except (ValueError, OSError) as exc:
         _fail(f"cannot start the vehicle on port {port}: {exc}")
-    click.echo(f"vehicle on udp 127.0.0.1:{port}, airborne at {altitude_m:g} m in LOITER; Ctrl-C stops it")
+    where = "disarmed on the ground in STABILIZE" if on_ground else f"airborne at {altitude_m:g} m in LOITER"
+    click.echo(f"vehicle on udp 127.0.0.1:{port}, {where}; Ctrl-C stops it")
     try:
         v.run(threading.Event())
     except KeyboardInterrupt:

@@ -94,7 +94,7 @@ def test_a_maneuver_flown_on_arducopter_is_tracked_within_2_m_by_the_imu(sitl):
     obs.takeoff(ALTITUDE_M)
     obs.set_mode(BRAKE)   # the flight side must give it back to BRAKE
     assert obs.wait_mode(BRAKE)
-    time.sleep(10.0 / SPEEDUP)   # cruising, not just off the takeoff: the EKF has settled
+    time.sleep(script.CRUISE_S / SPEEDUP)   # cruising, not just off the takeoff: the EKF has settled
     row = script.fly_one(s.url(1), obs, rng=random.Random(11))
     assert obs.wait_mode(BRAKE), f"left in mode {obs.custom_mode}"
     m = row["maneuver"]

@@ -8,7 +8,8 @@ maneuver's velocity legs at SETPOINT_HZ of vehicle time with the heading still h
 face its travel); zero velocity until the vehicle has stopped; hover again to see how the gyro's bias drifted; give
 the vehicle back to the mode it was in.
 Throughout, the vehicle must stay armed, in GUIDED, above the safe height, inside the geofence, and follow the
-setpoints; when it does not, the maneuver is aborted (ManeuverAborted, one line): zero velocity, previous mode.
+setpoints; when it does not, the maneuver is aborted (ManeuverAborted, one line): zero velocity and the previous
+mode back (unless a pilot or a failsafe took the vehicle out of GUIDED: theirs stands).
 The IMU track is the strapdown integration of the maneuver's IMU samples from the autopilot's attitude and velocity
 at its start, its biases taken off.
 """
@@ -255,13 +256,24 @@ class Pilot:
         previous = self.tm.custom_mode
         self.set_mode(GUIDED)
         try:
-            return self._fly_guided(maneuver)
+            flown = self._fly_guided(maneuver)
         except PilotError as exc:
             self._hold()
-            raise ManeuverAborted(f"maneuver aborted: {exc}") from None
-        finally:
-            if previous != GUIDED:
+            raise ManeuverAborted(f"maneuver aborted: {exc}{self._give_back(previous)}") from None
+        self._give_back(previous)
+        return flown
+
+    def _give_back(self, previous: int) -> str:
+        """The mode the vehicle was in, unless someone else (a pilot on the radio, a failsafe) has taken it out of
+        GUIDED meanwhile: the flight side does not fight them. Returns what was done, for an abort's message."""
+        if self.tm.custom_mode != GUIDED:
+            return f"; left in mode {self.tm.custom_mode}"
+        if previous != GUIDED:
+            try:
                 self.set_mode(previous)
+            except PilotError as exc:
+                return f"; mode {previous} not restored: {exc}"
+        return f"; back in mode {previous}"
 
     def _fly_guided(self, maneuver: Maneuver) -> FlownManeuver:
         yaw = self.tm.heading_rad
