@@ -130,8 +130,9 @@ class Pilot:
                 continue
             if msg is None or msg.get_type() == "BAD_DATA":
                 continue
-            if self.target is not None and msg.get_srcSystem() != self.target[0]:
-                continue   # another system on the link (a ground station) is not the vehicle
+            if self.target is not None and (msg.get_srcSystem() != self.target[0] or (
+                    msg.get_type() == "HEARTBEAT" and msg.get_srcComponent() != self.target[1])):
+                continue   # another system on the link (a ground station), or a camera's HEARTBEAT, is not the autopilot
             try:
                 imu = self.tm.update(msg, time.monotonic())
             except TelemetryError as exc:
