@@ -97,14 +97,14 @@ def check_vehicle_url(url: str) -> str:
 class Pilot:
     """One MAVLink link to one vehicle. timeout_s bounds every wait for an answer and every silence of a stream."""
 
-    def __init__(self, url: str, timeout_s: float = 10.0, limits: ManeuverLimits = ManeuverLimits()):
+    def __init__(self, url: str, timeout_s: float = 10.0, limits: ManeuverLimits | None = None):
         check_vehicle_url(url)
         try:
             self.conn = mavutil.mavlink_connection(url, source_system=250, source_component=191, dialect="common")
         except Exception as exc:   # noqa: BLE001 -- pymavlink raises anything from a refused TCP connect on
             raise PilotError(f"cannot open {url}: {exc}") from None
         self.timeout_s = timeout_s
-        self.limits = limits
+        self.limits = limits or ManeuverLimits()
         self.target = None
         self.imu_stream = "HIGHRES_IMU"
         self.tm = Telemetry()
