@@ -203,3 +203,20 @@ def test_fly_refuses_a_disarmed_vehicle_on_the_ground_in_one_line(tmp_path):
     assert result.returncode != 0, result.stdout
     err = result.stderr.strip()
     assert err.count("\n") == 0 and "disarmed" in err and "Traceback" not in err, err
+
+
+def test_a_vehicle_that_ignores_the_setpoints_aborts_the_maneuver(vehicle):
+    """A vehicle that takes GUIDED but does not move (ArduCopter on the ground did so) is caught by its reported
+    velocity, not reported as a maneuver flown."""
+    v, port = vehicle
+    pilot = Pilot(f"udpout:127.0.0.1:{port}", timeout_s=10)
+    try:
+        status = pilot.prepare()
+        maneuver = draw(ManeuverLimits(), altitude_m=status.height_above_home_m, rng=random.Random(6))
+        v._setpoint = lambda msg: None   # acknowledged by nothing, obeyed by nothing: it holds where it is
+        with pytest.raises(ManeuverAborted, match="does not follow the setpoints") as aborted:
+            pilot.fly(maneuver)
+    finally:
+        pilot.close()
+    assert "back in mode" in str(aborted.value) and v.mode == MODES["LOITER"]
+    assert np.hypot(*v.vehicle.pos_ned_m[:2]) < 2.0
