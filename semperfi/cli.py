@@ -425,8 +425,10 @@ def _print_run_summary(summary) -> None:
 @click.option("--heading", "heading_deg", type=click.FloatRange(-360.0, 360.0), default=0.0, show_default=True)
 @click.option("--time-scale", type=click.FloatRange(0.01, 100.0), default=1.0, show_default=True,
               help="vehicle seconds per wall second")
-def vehicle(port, seed, altitude_m, heading_deg, time_scale) -> None:
-    """A simulated multicopter behind a MAVLink endpoint (UDP 127.0.0.1:PORT), as ArduCopter in GUIDED obeys it."""
+@click.option("--on-ground", is_flag=True, help="disarmed on the ground (it never takes off), not airborne")
+def vehicle(port, seed, altitude_m, heading_deg, time_scale, on_ground) -> None:
+    """A simulated multicopter behind a MAVLink endpoint (UDP 127.0.0.1:PORT), as ArduCopter in GUIDED obeys it:
+    it streams only what SET_MESSAGE_INTERVAL asks for, and turns to face its travel unless given a heading."""
     import math
     import threading
 
@@ -434,10 +436,11 @@ def vehicle(port, seed, altitude_m, heading_deg, time_scale) -> None:
 
     try:
         v = MavlinkVehicle(port, seed=seed, altitude_m=altitude_m, heading_rad=math.radians(heading_deg),
-                           time_scale=time_scale)
+                           time_scale=time_scale, airborne=not on_ground)
     except (ValueError, OSError) as exc:
         _fail(f"cannot start the vehicle on port {port}: {exc}")
-    click.echo(f"vehicle on udp 127.0.0.1:{port}, airborne at {altitude_m:g} m in LOITER; Ctrl-C stops it")
+    where = "disarmed on the ground in STABILIZE" if on_ground else f"airborne at {altitude_m:g} m in LOITER"
+    click.echo(f"vehicle on udp 127.0.0.1:{port}, {where}; Ctrl-C stops it")
     try:
         v.run(threading.Event())
     except KeyboardInterrupt:
@@ -448,15 +451,15 @@ def vehicle(port, seed, altitude_m, heading_deg, time_scale) -> None:
 @click.option("--vehicle", "url", default="udpout:127.0.0.1:14550", show_default=True,
               help="the vehicle's MAVLink address (pymavlink connection string)")
 @click.option("-o", "--out", "out_path", type=click.Path(dir_okay=False), help="write the IMU track here (CSV)")
-@click.option("--heading", "heading_deg", type=click.FloatRange(-360.0, 360.0), default=0.0, show_default=True,
-              help="the current track's heading (the maneuver must leave its corridor)")
-@click.option("--timeout", "timeout_s", type=click.FloatRange(1.0, 600.0), default=10.0, show_default=True)
-def fly(url, out_path, heading_deg, timeout_s) -> None:
-    """Draw a pseudorandom maneuver (from the OS's cryptographic source), fly it over MAVLink in GUIDED, and
-    dead-reckon it from the vehicle's IMU; the track (t_s in vehicle boot seconds) goes to --out."""
+@click.option("--timeout", "timeout_s", type=click.FloatRange(1.0, 600.0), default=10.0, show_default=True,
+              help="the longest wait for an answer, and the longest silence of a stream")
+def fly(url, out_path, timeout_s) -> None:
+    """Fly a pseudorandom maneuver (from the OS's cryptographic source, drawn for the vehicle's height and track)
+    over MAVLink in GUIDED, and dead-reckon it from the vehicle's IMU; the track (t_s in vehicle boot seconds) goes
+    to --out. The vehicle must be armed and in the air; it is given back to its mode afterwards."""
     import math
 
-    from .flight.deadreckoning import write_track_csv
+    from .flight.deadreckoning import ins_error_bound_m, write_track_csv
     from .flight.maneuver import ManeuverLimits, draw
     from .flight.mavlink_pilot import Pilot, PilotError, check_vehicle_url
 
@@ -466,20 +469,24 @@ def fly(url, out_path, heading_deg, timeout_s) -> None:
         _fail(str(exc))
     if out_path:
         _output_folder(out_path)
-    maneuver = draw(ManeuverLimits(), track_heading_rad=math.radians(heading_deg))
-    click.echo(f"maneuver: {len(maneuver.legs)} legs, {maneuver.duration_s:.1f} s, {maneuver.path_length_m:.1f} m "
-               f"flown, ends {maneuver.end_distance_m:.1f} m from its start")
     try:
         pilot = Pilot(url, timeout_s=timeout_s)
         try:
+            status = pilot.prepare()
+            maneuver = draw(ManeuverLimits(), track_heading_rad=status.track_heading_rad,
+                            altitude_m=status.height_above_home_m)
+            click.echo(f"maneuver at {status.height_above_home_m:.1f} m above home: {len(maneuver.legs)} legs, "
+                       f"{maneuver.duration_s:.1f} s, {maneuver.path_length_m:.1f} m flown, ends "
+                       f"{maneuver.end_distance_m:.1f} m from its start")
             flown = pilot.fly(maneuver)
         finally:
             pilot.close()
-    except (PilotError, ValueError, OSError) as exc:
+    except (PilotError, ValueError, RuntimeError, OSError) as exc:
         _fail(f"flight over {url} failed: {exc}")
     end = flown.ins.pos_ned_m[-1] - flown.ins.pos_ned_m[0]
-    click.echo(f"flown from vehicle time {flown.start_time_boot_s:.2f} s; the IMU puts the end {math.hypot(*end[:2]):.1f} m "
-               f"from the start")
+    t_end = flown.ins.t_s[-1]
+    click.echo(f"flown from vehicle time {flown.start_time_boot_s:.2f} s for {t_end:.1f} s; the IMU puts the end "
+               f"{math.hypot(*end[:2]):.1f} m from the start (within {float(ins_error_bound_m(t_end)):.1f} m)")
     if out_path:
         write_track_csv(out_path, flown.ins.t_s + flown.start_time_boot_s, flown.ins.pos_ned_m)
         click.echo(f"IMU track: {out_path}")

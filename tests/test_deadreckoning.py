@@ -30,3 +30,28 @@ def test_gyro_bias_makes_drift_visible():
     w = w + np.array([0.0, 0.01, 0.0])     # 0.57 deg/s pitch-rate bias tilts gravity into the horizontal
     ins = integrate(t, f, w, vel0_ned_mps=v0)
     assert np.linalg.norm(ins.pos_ned_m[-1] - (p[-1] - p[0])) > 1.0
+
+
+def test_a_gyro_bias_measured_in_the_hover_is_taken_off():
+    from semperfi.flight.deadreckoning import bias_between, hover_bias, ins_error_bound_m
+    t, p, f, w, v0 = known_trajectory()
+    bias = np.array([1e-3, -8e-4, 5e-4])   # SITL's gyro a few minutes after boot
+    drift = np.full(3, 1.5e-5)              # and how fast it moves (0.05 deg/s a minute)
+    rng = np.random.default_rng(1)
+
+    def hover(t0_s):   # 3 s still and level, heading 0: the autopilot's attitude does not move
+        th = t0_s + np.arange(0, 3, 0.02)
+        gyro = bias + np.outer(th, drift) + rng.normal(0, 3e-4, (len(th), 3))
+        accel = np.tile(-GRAVITY_NED_MPS2, (len(th), 1)) + rng.normal(0, 0.01, (len(th), 3))
+        return hover_bias(th, accel, gyro, th, np.zeros((len(th), 3)), th, np.zeros((len(th), 3))), th.mean()
+
+    (before, tb), (after, ta) = hover(-3.0), hover(t[-1])
+    est = bias_between(before, after, tb, ta, 0.0)
+    assert np.allclose(est.gyro_bias_rps, bias, atol=1e-4), est.gyro_bias_rps
+    assert np.allclose(est.accel_residual_ned_mps2, 0.0), "the accelerometer's noise is not taken for a bias"
+    wb = w + bias + np.outer(t, drift)
+    raw = integrate(t, f, wb, vel0_ned_mps=v0)
+    fixed = integrate(t, f, wb, vel0_ned_mps=v0, bias=est)
+    end = p[-1] - p[0]
+    assert np.linalg.norm(raw.pos_ned_m[-1] - end) > 3.0
+    assert np.linalg.norm(fixed.pos_ned_m[-1] - end) < 0.3 * ins_error_bound_m(t[-1])

@@ -1,8 +1,13 @@
 """Claims about the MAVLink side: the flight side flies a drawn maneuver on the simulated vehicle over MAVLink (UDP
 loopback) as it would command ArduCopter in GUIDED mode, its IMU-only track follows the vehicle's true motion within
-the paper's drift, and a hostile peer cannot crash the vehicle or steer it outside GUIDED."""
+the paper's drift, and a hostile peer cannot crash the vehicle or steer it outside GUIDED. The vehicle behaves as
+ArduCopter SITL was found to (tests/test_sitl.py flies the real one): it streams nothing until asked, turns to face
+its travel unless given a heading, tilts to accelerate, drifts its gyro, and ignores setpoints on the ground."""
 
+import random
 import socket
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -14,7 +19,7 @@ from pymavlink.dialects.v20 import common as mav  # noqa: E402
 
 from semperfi.defense.identifier import GpsTrack, ImuTrack, paper_test  # noqa: E402
 from semperfi.flight.maneuver import ManeuverLimits, draw  # noqa: E402
-from semperfi.flight.mavlink_pilot import Pilot  # noqa: E402
+from semperfi.flight.mavlink_pilot import ManeuverAborted, Pilot  # noqa: E402
 from semperfi.sim.mavlink_vehicle import MODES, MavlinkVehicle  # noqa: E402
 
 TIME_SCALE = 20.0
@@ -40,13 +45,17 @@ def _truth_during(v, flown):
 
 def test_a_drawn_maneuver_flown_over_mavlink_is_tracked_by_the_imu(vehicle):
     v, port = vehicle
-    maneuver = draw(ManeuverLimits(), track_heading_rad=0.6)
     pilot = Pilot(f"udpout:127.0.0.1:{port}", timeout_s=10)
     try:
+        status = pilot.prepare()
+        assert abs(status.height_above_home_m - 50.0) < 1.0 and abs(status.heading_rad - 0.6) < 0.05, status
+        maneuver = draw(ManeuverLimits(), track_heading_rad=status.track_heading_rad,
+                        altitude_m=status.height_above_home_m, rng=random.Random(4))
         flown = pilot.fly(maneuver)
     finally:
         pilot.close()
     assert v.mode == MODES["LOITER"], "the vehicle is given back to the mode it was in"
+    assert abs(v.vehicle.heading_rad - 0.6) < 0.05, "the heading is held (unasked, it would face its travel)"
     t, truth = _truth_during(v, flown)
     end = truth[-1]
     planned_end = np.array([maneuver.north_m[-1], maneuver.east_m[-1], maneuver.down_m[-1]])
@@ -123,3 +132,91 @@ def test_fly_without_a_vehicle_is_one_error_line():
                              f"udpout:127.0.0.1:{_free_port()}", "--timeout", "1"], capture_output=True, text=True,
                             timeout=60)
     assert result.returncode != 0 and result.stderr.strip().count("\n") == 0 and "HEARTBEAT" in result.stderr
+
+
+def test_the_vehicle_streams_only_what_it_is_asked_for(vehicle):
+    v, port = vehicle
+    peer = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=66, dialect="common")
+    try:
+        peer.mav.heartbeat_send(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+        seen = {m.get_type() for m in _messages(peer, 1.5)}
+        assert seen == {"HEARTBEAT"}, seen
+        peer.mav.command_long_send(1, 1, mav.MAV_CMD_SET_MESSAGE_INTERVAL, 0, mav.MAVLINK_MSG_ID_HIGHRES_IMU, 20000,
+                                   0, 0, 0, 0, 0)
+        peer.mav.command_long_send(1, 1, mav.MAV_CMD_SET_MESSAGE_INTERVAL, 0, mav.MAVLINK_MSG_ID_SIM_STATE, 20000,
+                                   0, 0, 0, 0, 0)
+        got = _messages(peer, 1.5)
+        acks = [m.result for m in got if m.get_type() == "COMMAND_ACK"]
+        assert acks == [mav.MAV_RESULT_ACCEPTED, mav.MAV_RESULT_UNSUPPORTED], acks
+        imu = [m for m in got if m.get_type() == "HIGHRES_IMU"]
+        rate_hz = (len(imu) - 1) / ((imu[-1].time_usec - imu[0].time_usec) / 1e6)
+        assert abs(rate_hz - 50.0) < 5.0 and {m.get_type() for m in got} <= {"HEARTBEAT", "COMMAND_ACK", "HIGHRES_IMU"}
+    finally:
+        peer.close()
+
+
+def _messages(peer, wall_s: float) -> list:
+    out, deadline = [], time.monotonic() + wall_s
+    while time.monotonic() < deadline:
+        m = peer.recv_match(blocking=True, timeout=0.1)
+        if m is not None:
+            out.append(m)
+    return out
+
+
+def test_a_pilot_taking_over_aborts_the_maneuver_and_keeps_the_vehicle(vehicle):
+    v, port = vehicle
+    pilot = Pilot(f"udpout:127.0.0.1:{port}", timeout_s=10)
+    try:
+        status = pilot.prepare()
+        maneuver = draw(ManeuverLimits(), altitude_m=status.height_above_home_m, rng=random.Random(5))
+        started = v.setpoints
+        # a pilot on the radio takes over part-way (ArduCopter: a mode switch on the transmitter)
+        def take_over():   # once the maneuver's legs are being flown (the hover's setpoints come first)
+            deadline = time.monotonic() + 30
+            while v.setpoints < started + 60 and time.monotonic() < deadline:
+                time.sleep(0.01)
+            v._set_mode(MODES["RTL"])
+        threading.Thread(target=take_over, daemon=True).start()
+        with pytest.raises(ManeuverAborted, match="left GUIDED") as aborted:
+            pilot.fly(maneuver)
+    finally:
+        pilot.close()
+    assert "\n" not in str(aborted.value) and f"left in mode {MODES['RTL']}" in str(aborted.value)
+    time.sleep(0.5)
+    assert v.mode == MODES["RTL"], "the flight side does not take the vehicle back from whoever took it"
+
+
+def test_fly_refuses_a_disarmed_vehicle_on_the_ground_in_one_line(tmp_path):
+    import subprocess
+    import sys
+    port = _free_port()
+    vehicle = subprocess.Popen([sys.executable, "-m", "semperfi.cli", "vehicle", "--port", str(port), "--on-ground",
+                                "--time-scale", str(TIME_SCALE)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert "on the ground" in vehicle.stdout.readline()
+        result = subprocess.run([sys.executable, "-m", "semperfi.cli", "fly", "--vehicle", f"udpout:127.0.0.1:{port}"],
+                                capture_output=True, text=True, timeout=60)
+    finally:
+        vehicle.terminate()
+        vehicle.wait(10)
+    assert result.returncode != 0, result.stdout
+    err = result.stderr.strip()
+    assert err.count("\n") == 0 and "disarmed" in err and "Traceback" not in err, err
+
+
+def test_a_vehicle_that_ignores_the_setpoints_aborts_the_maneuver(vehicle):
+    """A vehicle that takes GUIDED but does not move (ArduCopter on the ground did so) is caught by its reported
+    velocity, not reported as a maneuver flown."""
+    v, port = vehicle
+    pilot = Pilot(f"udpout:127.0.0.1:{port}", timeout_s=10)
+    try:
+        status = pilot.prepare()
+        maneuver = draw(ManeuverLimits(), altitude_m=status.height_above_home_m, rng=random.Random(6))
+        v._setpoint = lambda msg: None   # acknowledged by nothing, obeyed by nothing: it holds where it is
+        with pytest.raises(ManeuverAborted, match="does not follow the setpoints") as aborted:
+            pilot.fly(maneuver)
+    finally:
+        pilot.close()
+    assert "back in mode" in str(aborted.value) and v.mode == MODES["LOITER"]
+    assert np.hypot(*v.vehicle.pos_ned_m[:2]) < 2.0

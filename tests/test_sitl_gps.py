@@ -2,37 +2,31 @@
 `GPS1_TYPE 14`), its GPS_RAW_INT showing our fix, and no fix while spoofing is suspected. Skipped, saying why, when
 ../shared/sitl/ is not there."""
 
-import subprocess
 import time
-from pathlib import Path
 
 import pytest
 
 from semperfi.receiver.fix_stream import FixStream
 from semperfi.receiver.gps_input import FIX_3D, MavlinkGpsOut
 
+from sitl import SITL_DIR, sitl_fly
 from test_outputs import _fix
 
-SITL = Path(__file__).resolve().parents[2] / "shared" / "sitl"
-INSTANCE = 7                          # ports 5830-5833: clear of instance 0 and of the flight tests' instance
+pytestmark = pytest.mark.skipif(not (SITL_DIR / "arducopter").exists(), reason=f"no ArduCopter SITL at {SITL_DIR}")
+INSTANCE = 8                          # ports 5840-5843: clear of instance 0 and of test_sitl.py's 7
 HOME = (-35.3632621, 149.1652374, 584.0)   # SITL's default home (CMAC): the fix we feed it
 GPS_RAW_INT_ID = 24
 
 
 @pytest.fixture(scope="module")
 def autopilot(tmp_path_factory):
-    if not (SITL / "arducopter").is_file():
-        pytest.skip(f"ArduCopter SITL not found in {SITL}")
-    run = tmp_path_factory.mktemp("sitl")
-    (run / "gps.parm").write_text("GPS1_TYPE 14\n")
-    proc = subprocess.Popen([str(SITL / "arducopter"), "--model", "quad", "--speedup", "1", "-w", f"-I{INSTANCE}",
-                             "--defaults", f"{SITL / 'copter.parm'},{run / 'gps.parm'}"], cwd=run,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    sitl = sitl_fly().Sitl(INSTANCE, 1.0, tmp_path_factory.mktemp("sitl"), SITL_DIR, params={"GPS1_TYPE": 14})
+    sitl.start()
     try:
         out = None
         for _ in range(50):               # it listens a moment after starting
             try:
-                out = MavlinkGpsOut(f"tcp:127.0.0.1:{5760 + 10 * INSTANCE}")
+                out = MavlinkGpsOut(sitl.url(0))
                 break
             except ValueError:
                 time.sleep(0.2)
@@ -42,8 +36,7 @@ def autopilot(tmp_path_factory):
         yield out
         out.close()
     finally:
-        proc.kill()
-        proc.wait(10)
+        sitl.stop()
 
 
 def _gps_raw(out, seconds: float):

@@ -52,17 +52,21 @@ def serve(port: int, key: bytes, vehicle_url: str, report, host: str = "127.0.0.
                 report({"event": "alarm_rejected", "error": str(exc)})
                 continue
             lines_of_sight = [unit_ned(az, el) for _, az, el in sky]
-            maneuver = draw(ManeuverLimits(), lines_of_sight=lines_of_sight, required_spread_m=required_m, rng=rng)
-            maneuver_id = secrets.token_hex(8)
-            peer.send("maneuver_request", {"maneuver_id": maneuver_id})
-            report({"event": "maneuver_drawn", "maneuver_id": maneuver_id, "legs": len(maneuver.legs),
-                    "duration_s": round(maneuver.duration_s, 2), "path_m": round(maneuver.path_length_m, 1),
-                    "end_distance_m": round(maneuver.end_distance_m, 1),
-                    **_spreads(maneuver, [prn for prn, _, _ in sky], lines_of_sight, required_m)})
             pilot = Pilot(vehicle_url, timeout_s=10.0)
             try:
+                status = pilot.prepare()   # the maneuver is drawn for where the vehicle is and how high
+                maneuver = draw(ManeuverLimits(), track_heading_rad=status.track_heading_rad,
+                                altitude_m=status.height_above_home_m,
+                                lines_of_sight=lines_of_sight, required_spread_m=required_m, rng=rng)
+                maneuver_id = secrets.token_hex(8)
+                peer.send("maneuver_request", {"maneuver_id": maneuver_id})
+                report({"event": "maneuver_drawn", "maneuver_id": maneuver_id, "legs": len(maneuver.legs),
+                        "duration_s": round(maneuver.duration_s, 2), "path_m": round(maneuver.path_length_m, 1),
+                        "end_distance_m": round(maneuver.end_distance_m, 1),
+                        "height_m": round(status.height_above_home_m, 1),
+                        **_spreads(maneuver, [prn for prn, _, _ in sky], lines_of_sight, required_m)})
                 result = pilot.fly(maneuver)
-            except PilotError as exc:
+            except (PilotError, ValueError, RuntimeError) as exc:
                 report({"event": "maneuver_failed", "error": str(exc)})
                 break
             finally:

@@ -3,10 +3,17 @@
 During the maneuver the flight side stops fusing GPS (the paper's EKF/GPS decoupling) and integrates the IMU alone
 from the state at the maneuver start.  Earth rotation and transport rate are neglected: over <= 20 s and < 50 m
 they add centimetres, far below the IMU errors the identifier tolerates.
+
+What breaks a 20 s strapdown track is not the integration but the sensor's biases: a gyro bias b tilts gravity into
+the horizontal and moves the track g b t^3 / 6 (1 mrad/s: 13 m in 20 s; ArduCopter SITL's gyro drifts by that in
+a few minutes), an accelerometer bias or a tilt error a moves it a t^2 / 2 (0.01 m/s^2: 2 m).  Both are measured in
+a hover just before the maneuver (hover_bias): the gyro's bias is what it reads beyond the autopilot's own
+bias-corrected rates, and the accelerometer's (with the start attitude's tilt error) is the specific force the
+hover's attitude leaves unexplained by its change of velocity.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -29,8 +36,78 @@ def _rodrigues(phi: np.ndarray) -> np.ndarray:
     return np.eye(3) + np.sin(a) / a * k + (1 - np.cos(a)) / a ** 2 * (k @ k)
 
 
-def integrate(t_s, accel_body_mps2, gyro_body_rps, c_nb0=None, vel0_ned_mps=None) -> InsTrack:
-    """Integrate specific force (m/s^2) and angular rate (rad/s), both in the body frame, sampled at t_s."""
+@dataclass(frozen=True)
+class HoverBias:
+    gyro_bias_rps: np.ndarray              # body frame: subtract from the gyro (at the track's start)
+    accel_residual_ned_mps2: np.ndarray    # navigation frame: subtract from the integrated acceleration
+    gyro_drift_rps2: np.ndarray = field(default_factory=lambda: np.zeros(3))   # how the gyro's bias changes with time from the start
+
+
+def bias_between(before: HoverBias, after: HoverBias, before_t_s: float, after_t_s: float,
+                 start_t_s: float) -> HoverBias:
+    """A drifting bias from a hover before the track and one after it (their mid-times): the gyro's bias moves in
+    a straight line between them (SITL's drifts by 0.05 deg/s a minute: 0.3 mrad/s over a maneuver, 1-2 m in
+    20 s); the accelerometer's, which holds the start attitude's tilt error, is the first hover's."""
+    drift = (after.gyro_bias_rps - before.gyro_bias_rps) / (after_t_s - before_t_s)
+    return HoverBias(before.gyro_bias_rps + drift * (start_t_s - before_t_s), before.accel_residual_ned_mps2, drift)
+
+
+def hover_bias(imu_t_s, accel_body_mps2, gyro_body_rps, att_t_s, att_rpy_rad, vel_t_s, vel_ned_mps) -> HoverBias:
+    """The IMU's biases from a hover (a few seconds, heading held, nearly still): the gyro's is the slope of the
+    angle it integrates beyond the angle the autopilot's attitude (ATTITUDE) turned through over the same span (a
+    least-squares line: the autopilot's attitude is noisy sample to sample); the accelerometer's, with the
+    autopilot's tilt error, is the mean of C f + g beyond the mean acceleration of the hover's velocity change (the
+    autopilot's velocities, vel_ned_mps at vel_t_s, taken at the first and last IMU samples' times)."""
+    from .telemetry import c_nb
+    t, f, w = np.asarray(imu_t_s, float), np.asarray(accel_body_mps2, float), np.asarray(gyro_body_rps, float)
+    ta, rpy = np.asarray(att_t_s, float), np.asarray(att_rpy_rad, float)
+    if len(t) < 10 or len(ta) < 10:
+        raise ValueError("a hover needs at least 10 IMU and 10 attitude samples")
+    c = np.array([c_nb(*a) for a in rpy])
+    turned = np.array([_rotation_vector(c[0].T @ ck) for ck in c])            # body frame, from the first
+    turned_at = np.column_stack([np.interp(t, ta, turned[:, k]) for k in range(3)])
+    gyro_angle = np.vstack([np.zeros(3), np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(t)[:, None], axis=0)])
+    inside = (t >= ta[0]) & (t <= ta[-1])
+    gyro_bias = np.polyfit(t[inside] - t[0], (gyro_angle - turned_at)[inside], 1)[0]
+    at = np.clip(np.searchsorted(ta, t, side="right") - 1, 0, len(ta) - 1)   # the attitude last reported
+    unexplained = np.einsum("nij,nj->ni", c[at], f) + GRAVITY_NED_MPS2
+    tv, v = np.asarray(vel_t_s, float), np.asarray(vel_ned_mps, float)
+    dv = np.array([np.interp(t[-1], tv, v[:, k]) - np.interp(t[0], tv, v[:, k]) for k in range(3)])
+    accel = unexplained.mean(axis=0) - dv / (t[-1] - t[0])
+    # a noisy accelerometer's mean over a short hover is mostly its noise: taken off only where it stands out of
+    # that noise (three standard errors), else the correction adds more error than it removes. The noise is what
+    # changes sample to sample: the hover's own slow swaying is no noise (its velocity change accounts for it)
+    noise = np.diff(unexplained, axis=0).std(axis=0) / np.sqrt(2 * len(t))
+    return HoverBias(gyro_bias, np.where(np.abs(accel) > 3 * noise, accel, 0.0))
+
+
+def _rotation_vector(c: np.ndarray) -> np.ndarray:
+    angle = np.arccos(np.clip((np.trace(c) - 1.0) / 2.0, -1.0, 1.0))
+    axis = np.array([c[2, 1] - c[1, 2], c[0, 2] - c[2, 0], c[1, 0] - c[0, 1]]) / 2.0
+    return axis if angle < 1e-9 else axis * (angle / np.sin(angle))
+
+
+# what the hovers leave of each error, at worst (ArduCopter SITL: 13 maneuvers of 13-20 s, at most 0.63 of the
+# bound anywhere along their tracks; scripts/sitl-fly prints them)
+START_VELOCITY_ERROR_MPS = 0.05        # the autopilot's velocity at the start (GPS-aided until then)
+ACCEL_RESIDUAL_MPS2 = 0.005            # accelerometer bias and start tilt left after the hover's correction
+GYRO_RESIDUAL_RPS = 1.5e-4             # gyro bias left after the two hovers' line (SITL's drifts 0.015 mrad/s^2)
+FLOOR_M = 0.3                          # sample timing: 20 ms at 4 m/s, and the truth's own tagging
+
+
+def ins_error_bound_m(t_s):
+    """How far a hover-calibrated strapdown track may be from the truth t_s after its start: a start velocity error
+    (t), the accelerometer's residual (t^2 / 2) and the gyro's, tilting gravity (g t^3 / 6). The identifier's
+    threshold takes this: 2.4 m after 15 s, 4.3 m after 20 s."""
+    t = np.asarray(t_s, float)
+    return (FLOOR_M + START_VELOCITY_ERROR_MPS * t + ACCEL_RESIDUAL_MPS2 * t ** 2 / 2
+            + GRAVITY_NED_MPS2[2] * GYRO_RESIDUAL_RPS * t ** 3 / 6)
+
+
+def integrate(t_s, accel_body_mps2, gyro_body_rps, c_nb0=None, vel0_ned_mps=None, bias: HoverBias | None = None
+              ) -> InsTrack:
+    """Integrate specific force (m/s^2) and angular rate (rad/s), both in the body frame, sampled at t_s, from the
+    attitude c_nb0 and velocity vel0_ned_mps at t_s[0]; bias (hover_bias) is taken off the samples."""
     t = np.asarray(t_s, float)
     f = np.asarray(accel_body_mps2, float)
     w = np.asarray(gyro_body_rps, float)
@@ -38,6 +115,9 @@ def integrate(t_s, accel_body_mps2, gyro_body_rps, c_nb0=None, vel0_ned_mps=None
         raise ValueError("accel and gyro must be (n, 3) with n = len(t_s) >= 2")
     if np.any(np.diff(t) <= 0) or not np.all(np.isfinite(f)) or not np.all(np.isfinite(w)):
         raise ValueError("IMU samples: time must increase and values be finite")
+    if bias is not None:
+        w = w - bias.gyro_bias_rps - np.outer(t - t[0], bias.gyro_drift_rps2)
+    residual = np.zeros(3) if bias is None else bias.accel_residual_ned_mps2
     c = np.eye(3) if c_nb0 is None else np.array(c_nb0, float)
     v = np.zeros(3) if vel0_ned_mps is None else np.array(vel0_ned_mps, float)
     p = np.zeros(3)
@@ -46,8 +126,8 @@ def integrate(t_s, accel_body_mps2, gyro_body_rps, c_nb0=None, vel0_ned_mps=None
         dt = t[i + 1] - t[i]
         # trapezoid on rates and specific force: second-order accurate attitude and velocity
         c_next = c @ _rodrigues(0.5 * (w[i] + w[i + 1]) * dt)
-        a0 = c @ f[i] + GRAVITY_NED_MPS2
-        a1 = c_next @ f[i + 1] + GRAVITY_NED_MPS2
+        a0 = c @ f[i] + GRAVITY_NED_MPS2 - residual
+        a1 = c_next @ f[i + 1] + GRAVITY_NED_MPS2 - residual
         v_next = v + 0.5 * (a0 + a1) * dt
         p = p + 0.5 * (v + v_next) * dt
         v, c = v_next, c_next

@@ -1,12 +1,17 @@
 """Flies a maneuver over MAVLink as a companion computer commands ArduCopter in GUIDED mode (PX4's OFFBOARD takes the
 same SET_POSITION_TARGET_LOCAL_NED stream), and dead-reckons it from the vehicle's own IMU, decoupled from GPS.
 
-Sequence: wait for the vehicle's HEARTBEAT; switch to GUIDED (COMMAND_LONG MAV_CMD_DO_SET_MODE, acknowledged, and
-seen in the next HEARTBEAT); stream the maneuver's velocity legs at SETPOINT_HZ of vehicle time (time_boot_ms),
-then zero velocity until the vehicle has stopped; give the vehicle back to the mode it was in. The IMU track is the
-strapdown integration of SCALED_IMU over the maneuver, from the attitude (ATTITUDE) and the velocity
-(LOCAL_POSITION_NED, the autopilot's estimate just before the maneuver, when GPS was still trusted) at its start.
-Everything the vehicle sends is checked for being finite; a silent or wrong vehicle is a PilotError after timeout_s.
+Sequence: wait for the vehicle's HEARTBEAT; ask for the streams it reads (telemetry.STREAMS_HZ, on this link);
+refuse a vehicle that is disarmed, on the ground or too low (prepare); switch to GUIDED (acknowledged, and seen in a
+HEARTBEAT); hover HOVER_S with the heading held, measuring the IMU's biases (deadreckoning.hover_bias); stream the
+maneuver's velocity legs at SETPOINT_HZ of vehicle time with the heading still held (ArduCopter otherwise turns to
+face its travel); zero velocity until the vehicle has stopped; hover again to see how the gyro's bias drifted; give
+the vehicle back to the mode it was in.
+Throughout, the vehicle must stay armed, in GUIDED, above the safe height, inside the geofence, and follow the
+setpoints; when it does not, the maneuver is aborted (ManeuverAborted, one line): zero velocity and the previous
+mode back (unless a pilot or a failsafe took the vehicle out of GUIDED: theirs stands).
+The IMU track is the strapdown integration of the maneuver's IMU samples from the autopilot's attitude and velocity
+at its start, its biases taken off.
 """
 
 from __future__ import annotations
@@ -19,20 +24,40 @@ import numpy as np
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mav
 
-from .deadreckoning import InsTrack, integrate
-from .maneuver import Maneuver
+from .deadreckoning import HoverBias, InsTrack, bias_between, hover_bias, integrate
+from .maneuver import Maneuver, ManeuverLimits
+from .telemetry import IMU_FALLBACK, MSG_ID, STREAMS_HZ, Telemetry, TelemetryError, c_nb
 
 GUIDED = 4
 SETPOINT_HZ = 10.0
-VELOCITY_ONLY = 0b0000_1101_1100_0111    # type_mask: use vx, vy, vz; ignore position, acceleration, yaw, yaw rate
+VELOCITY_AND_YAW = 0b0000_1001_1100_0111  # type_mask: use vx, vy, vz and yaw; ignore position, accel, yaw rate
+HOVER_S = 3.0                             # the bias-measuring hovers before and after the maneuver (vehicle time)
+HOVER_MAX_SPEED_MPS = 1.0                 # a vehicle drifting faster than this in a zero-velocity hover disobeys
+STILL_MPS = 0.5                           # the hover starts once the vehicle has been this slow for STILL_S
+STILL_S = 0.5
 STOPPED_MPS = 0.2
 SETTLE_MAX_S = 6.0
 COMMAND_RETRY_S = 1.0                     # a command without an ACK after this is sent again
-G_MPS2 = 9.80665
+OBEY_TOLERANCE_MPS = 1.5                  # reported velocity this far from the plan's ...
+OBEY_GRACE_S = 2.0                        # ... for this long (vehicle time) is disobedience
+HEIGHT_MARGIN_M = 2.0                     # below the limits' minimum height by this much: abort
 
 
 class PilotError(RuntimeError):
-    """The vehicle did not answer, refused GUIDED, or sent nonsense."""
+    """The vehicle did not answer, refused, is not fit to maneuver, or sent nonsense."""
+
+
+class ManeuverAborted(PilotError):
+    """The maneuver was stopped part-way (the vehicle given back to its mode); the reason is the message."""
+
+
+@dataclass(frozen=True)
+class VehicleStatus:
+    """What a maneuver is drawn for."""
+    height_above_home_m: float
+    heading_rad: float
+    track_heading_rad: float
+    custom_mode: int
 
 
 @dataclass(frozen=True)
@@ -41,6 +66,7 @@ class FlownManeuver:
     start_time_boot_s: float       # vehicle time of the maneuver start
     reported_ned_m: np.ndarray     # LOCAL_POSITION_NED during the maneuver (the autopilot's view; for the record)
     reported_t_s: np.ndarray
+    bias: HoverBias                # what the hover measured and the track took off
 
 
 NETWORK_FORMS = ("tcp", "tcpin", "udp", "udpin", "udpout", "udpbcast")
@@ -69,124 +95,341 @@ def check_vehicle_url(url: str) -> str:
 
 
 class Pilot:
-    def __init__(self, url: str, timeout_s: float = 10.0):
+    """One MAVLink link to one vehicle. timeout_s bounds every wait for an answer and every silence of a stream."""
+
+    def __init__(self, url: str, timeout_s: float = 10.0, limits: ManeuverLimits | None = None):
         check_vehicle_url(url)
-        self.conn = mavutil.mavlink_connection(url, source_system=250, source_component=191, dialect="common")
+        try:
+            self.conn = mavutil.mavlink_connection(url, source_system=250, source_component=191, dialect="common")
+        except Exception as exc:   # noqa: BLE001 -- pymavlink raises anything from a refused TCP connect on
+            raise PilotError(f"cannot open {url}: {exc}") from None
         self.timeout_s = timeout_s
+        self.limits = limits or ManeuverLimits()
         self.target = None
+        self.imu_stream = "HIGHRES_IMU"
+        self.tm = Telemetry()
+        self._imu: list = []        # (t_s, accel, gyro) as they come, while recording
+        self._att: list = []        # (t_s, rpy, rates)
+        self._pos: list = []        # (t_s, ned, vel)
+        self._recording = False
 
     def close(self) -> None:
         self.conn.close()
 
-    def _recv(self, types, deadline: float):
-        while time.monotonic() < deadline:
+    # -- receiving ---------------------------------------------------------------------------------------------
+    def _next(self, deadline: float, waiting_for: str, since: float):
+        """The next message (telemetry updated, IMU and attitude recorded), or PilotError at the deadline, naming
+        what was awaited and for how long it truly was."""
+        while True:
+            now = time.monotonic()
+            if now >= deadline:
+                raise PilotError(f"no {waiting_for} from the vehicle in {now - since:.1f} s")
             try:
-                msg = self.conn.recv_match(type=types, blocking=True, timeout=0.1)
+                msg = self.conn.recv_match(blocking=True, timeout=min(0.2, deadline - now))
             except Exception:   # noqa: BLE001 -- garbage on the wire is skipped, not trusted
                 continue
-            if msg is not None:
-                return msg
-        raise PilotError(f"no {types} from the vehicle within {self.timeout_s:g} s")
+            if msg is None or msg.get_type() == "BAD_DATA":
+                continue
+            if self.target is not None and (msg.get_srcSystem() != self.target[0] or (
+                    msg.get_type() == "HEARTBEAT" and msg.get_srcComponent() != self.target[1])):
+                continue   # another system on the link (a ground station), or a camera's HEARTBEAT, is not the autopilot
+            try:
+                imu = self.tm.update(msg, time.monotonic())
+            except TelemetryError as exc:
+                raise PilotError(str(exc)) from None
+            if self._recording:
+                self._record(msg, imu)
+            return msg
 
+    def _record(self, msg, imu) -> None:
+        kind = msg.get_type()
+        if imu is not None and kind == self.imu_stream:
+            if not self._imu or imu[0] > self._imu[-1][0]:   # a repeated timestamp adds nothing
+                self._imu.append(imu)
+        elif kind == "ATTITUDE":
+            self._att.append((self.tm.attitude_t_s, self.tm.attitude_rpy_rad, self.tm.attitude_rates_rps))
+        elif kind == "LOCAL_POSITION_NED":
+            self._pos.append((self.tm.pos_t_s, self.tm.pos_ned_m, self.tm.vel_ned_mps))
+
+    def _wait_for(self, kinds, what: str, timeout_s: float | None = None, accept=lambda msg: True):
+        since = time.monotonic()
+        deadline = since + (self.timeout_s if timeout_s is None else timeout_s)
+        while True:
+            msg = self._next(deadline, what, since)
+            if msg.get_type() in kinds and accept(msg):
+                return msg
+
+    # -- commands ----------------------------------------------------------------------------------------------
     def connect(self) -> int:
         """Say hello until the vehicle's HEARTBEAT arrives; returns its custom mode."""
-        deadline = time.monotonic() + self.timeout_s
+        since = time.monotonic()
+        deadline = since + self.timeout_s
         while True:
             self.conn.mav.heartbeat_send(mav.MAV_TYPE_ONBOARD_CONTROLLER, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0)
             try:
-                hb = self._recv("HEARTBEAT", min(deadline, time.monotonic() + 0.5))
-                break
+                hb = self._next(min(deadline, time.monotonic() + 0.5), "HEARTBEAT", since)
             except PilotError:
                 if time.monotonic() >= deadline:
-                    raise
+                    raise PilotError(f"no HEARTBEAT from the vehicle in {time.monotonic() - since:.1f} s") from None
+                continue
+            if hb.get_type() == "HEARTBEAT" and hb.type != mav.MAV_TYPE_GCS:
+                break
         self.target = (hb.get_srcSystem(), hb.get_srcComponent())
         return int(hb.custom_mode)
 
-    def set_mode(self, custom_mode: int) -> None:
-        """DO_SET_MODE, resent (confirmation counted up) each COMMAND_RETRY_S without an ACK, as the MAVLink command
-        protocol has it: a datagram lost on UDP, or drowned in a busy link's telemetry, must not fail the flight."""
-        deadline = time.monotonic() + self.timeout_s
-        confirmation, ack = 0, None
-        while ack is None:
-            self.conn.mav.command_long_send(*self.target, mav.MAV_CMD_DO_SET_MODE, min(confirmation, 255),
-                                            mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, custom_mode, 0, 0, 0, 0, 0)
+    def command(self, command: int, *params: float) -> int:
+        """COMMAND_LONG, resent (confirmation counted up) each COMMAND_RETRY_S without its ACK, as the MAVLink
+        command protocol has it; returns the ACK's result."""
+        p = [float(x) for x in params] + [0.0] * (7 - len(params))
+        since = time.monotonic()
+        deadline = since + self.timeout_s
+        for confirmation in range(256):
+            self.conn.mav.command_long_send(*self.target, command, confirmation, *p)
+            retry = min(deadline, time.monotonic() + COMMAND_RETRY_S)
             try:
-                ack = self._recv("COMMAND_ACK", min(deadline, time.monotonic() + COMMAND_RETRY_S))
+                while True:
+                    ack = self._next(retry, "COMMAND_ACK", since)
+                    if ack.get_type() == "COMMAND_ACK" and ack.command == command:
+                        return int(ack.result)
             except PilotError:
                 if time.monotonic() >= deadline:
-                    raise
-            confirmation += 1
-        if ack.command != mav.MAV_CMD_DO_SET_MODE or ack.result != mav.MAV_RESULT_ACCEPTED:
-            raise PilotError(f"vehicle refused mode {custom_mode} (ack {ack.command}: {ack.result})")
-        while self._recv("HEARTBEAT", deadline).custom_mode != custom_mode:
-            pass
+                    raise PilotError(f"no COMMAND_ACK for command {command} from the vehicle in "
+                                     f"{time.monotonic() - since:.1f} s") from None
+        raise PilotError(f"command {command} was never acknowledged")
 
+    def request_streams(self) -> None:
+        """SET_MESSAGE_INTERVAL for each stream read (HIGHRES_IMU, or SCALED_IMU from a vehicle refusing it), then
+        wait until every one has arrived."""
+        for name, hz in STREAMS_HZ.items():
+            result = self.command(mav.MAV_CMD_SET_MESSAGE_INTERVAL, MSG_ID[name], 1e6 / hz)
+            if result != mav.MAV_RESULT_ACCEPTED and name == "HIGHRES_IMU":
+                self.imu_stream = IMU_FALLBACK
+                result = self.command(mav.MAV_CMD_SET_MESSAGE_INTERVAL, MSG_ID[IMU_FALLBACK], 1e6 / hz)
+                name = IMU_FALLBACK
+            if result != mav.MAV_RESULT_ACCEPTED:
+                raise PilotError(f"vehicle refused to stream {name} (MAV_RESULT {result})")
+        wanted = {self.imu_stream, *(n for n in STREAMS_HZ if n != "HIGHRES_IMU")}
+        asked = time.monotonic()
+        seen = set()
+        deadline = asked + self.timeout_s
+        while not wanted <= seen:
+            try:
+                seen.add(self._next(deadline, "stream", asked).get_type())
+            except PilotError:
+                missing = ", ".join(sorted(wanted - seen))
+                raise PilotError(f"the vehicle acknowledged but did not stream {missing} in "
+                                 f"{time.monotonic() - asked:.1f} s") from None
+
+    def prepare(self) -> VehicleStatus:
+        """Connect, ask for the streams and check the vehicle can maneuver: armed, in the air, high enough."""
+        self.connect()
+        if not self.tm.armed:   # said first: a vehicle on the bench may never stream a position
+            raise PilotError("vehicle is disarmed: arm it and take off before a maneuver")
+        self.request_streams()
+        self._wait_for({"HEARTBEAT"}, "HEARTBEAT")   # armed state and mode as of now
+        tm, low = self.tm, self.limits.min_altitude_m
+        if not tm.armed:
+            raise PilotError("vehicle is disarmed: arm it and take off before a maneuver")
+        if not tm.airborne:
+            raise PilotError(f"vehicle is not in the air (landed state {tm.landed_state}, "
+                             f"{tm.height_above_home_m:.1f} m above home)")
+        if tm.height_above_home_m < low:
+            raise PilotError(f"vehicle is {tm.height_above_home_m:.1f} m above home, under the {low:g} m a "
+                             "maneuver needs")
+        return VehicleStatus(tm.height_above_home_m, tm.heading_rad, tm.track_heading_rad, tm.custom_mode)
+
+    def set_mode(self, custom_mode: int) -> None:
+        """DO_SET_MODE, acknowledged and then seen in a HEARTBEAT."""
+        result = self.command(mav.MAV_CMD_DO_SET_MODE, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, custom_mode)
+        if result != mav.MAV_RESULT_ACCEPTED:
+            raise PilotError(f"vehicle refused mode {custom_mode} (MAV_RESULT {result})")
+        self._wait_for({"HEARTBEAT"}, f"HEARTBEAT in mode {custom_mode}", accept=lambda hb: hb.custom_mode == custom_mode)
+
+    # -- flying ------------------------------------------------------------------------------------------------
     def fly(self, maneuver: Maneuver) -> FlownManeuver:
-        """Fly the maneuver's legs in GUIDED and return the IMU's track of it."""
-        previous = self.connect()
+        """Fly the maneuver's legs in GUIDED and return the IMU's track of it (prepare() first, or here)."""
+        if self.target is None:
+            self.prepare()
+        height = self.tm.height_above_home_m
+        lowest = height - float(np.max(maneuver.down_m))
+        if lowest < self.limits.min_altitude_m - HEIGHT_MARGIN_M:
+            raise PilotError(f"the maneuver would take the vehicle down to {lowest:.1f} m above home")
+        previous = self.tm.custom_mode
         self.set_mode(GUIDED)
         try:
-            return self._fly_legs(maneuver)
+            flown = self._fly_guided(maneuver)
+        except PilotError as exc:
+            self._hold()
+            raise ManeuverAborted(f"maneuver aborted: {exc}{self._give_back(previous)}") from None
+        self._give_back(previous)
+        return flown
+
+    def _give_back(self, previous: int) -> str:
+        """The mode the vehicle was in, unless someone else (a pilot on the radio, a failsafe) has taken it out of
+        GUIDED meanwhile: the flight side does not fight them. Returns what was done, for an abort's message."""
+        if self.tm.custom_mode != GUIDED:
+            return f"; left in mode {self.tm.custom_mode}"
+        if previous != GUIDED:
+            try:
+                self.set_mode(previous)
+            except PilotError as exc:
+                return f"; mode {previous} not restored: {exc}"
+        return f"; back in mode {previous}"
+
+    def _fly_guided(self, maneuver: Maneuver) -> FlownManeuver:
+        yaw = self.tm.heading_rad
+        self._imu, self._att, self._pos = [], [], []
+        self._recording = True
+        try:
+            before, before_t = self._hover(yaw)
+            start = self._imu[-1][0]
+            c0, v0 = c_nb(*self.tm.attitude_rpy_rad), self.tm.vel_ned_mps.copy()
+            p0 = self.tm.pos_ned_m.copy()
+            first = len(self._imu) - 1
+            plan = _PlannedVelocity(maneuver)
+            self._obey_since = None
+            self._stream(lambda t: plan.setpoint(t - start), yaw, until=lambda t: t >= start + maneuver.duration_s,
+                         guard=lambda t: self._maneuvering(t - start, plan, p0))
+            stopped = {}
+            self._stream(lambda t: np.zeros(3), yaw,
+                         until=lambda t: self._stopped(t, start + maneuver.duration_s, stopped),
+                         guard=lambda t: self._maneuvering(None, plan, p0))
+            last = len(self._imu)
+            after, after_t = self._hover(yaw)
         finally:
-            self.set_mode(previous)
+            self._recording = False
+        bias = bias_between(before, after, before_t, after_t, start)
+        imu = self._imu[first:last]
+        t = np.array([s[0] for s in imu]) - start
+        ins = integrate(t, np.array([s[1] for s in imu]), np.array([s[2] for s in imu]), c_nb0=c0,
+                        vel0_ned_mps=v0, bias=bias)
+        pos = [(pt - start, ned) for pt, ned, _ in self._pos if start <= pt <= imu[-1][0]]
+        return FlownManeuver(ins, start, np.array([p for _, p in pos]) - p0, np.array([pt for pt, _ in pos]), bias)
 
-    def _fly_legs(self, maneuver: Maneuver) -> FlownManeuver:
-        ends = np.cumsum([leg.duration_s for leg in maneuver.legs])
-        deadline = time.monotonic() + self.timeout_s + 3 * (ends[-1] + SETTLE_MAX_S)
-        imu_t, imu_f, imu_w, pos_t, pos = [], [], [], [], []
-        start = attitude = vel0 = None
-        next_setpoint, stopped_since = 0.0, None
+    def _hover(self, yaw_rad: float) -> tuple[HoverBias, float]:
+        """Zero velocity with the heading held for HOVER_S; the IMU's biases it measured, and its mid-time."""
+        self._settle(yaw_rad)
+        i0, a0, p0 = len(self._imu), len(self._att), len(self._pos)
+        t0 = self._hover_t0 = self._imu_time_now()
+        self._stream(lambda t: np.zeros(3), yaw_rad, until=lambda t: t >= t0 + HOVER_S, guard=self._hovering)
+        imu, att, pos = self._imu[max(i0 - 1, 0):], self._att[a0:], self._pos[max(p0 - 1, 0):]
+        if len(pos) < 2:
+            raise PilotError(f"no LOCAL_POSITION_NED during the {HOVER_S:g} s hover")
+        try:
+            bias = hover_bias([s[0] for s in imu], [s[1] for s in imu], [s[2] for s in imu], [a[0] for a in att],
+                              [a[1] for a in att], [p[0] for p in pos], [p[2] for p in pos])
+        except ValueError as exc:
+            raise PilotError(f"hover: {exc}") from None
+        return bias, 0.5 * (imu[0][0] + imu[-1][0])
+
+    def _settle(self, yaw_rad: float) -> None:
+        """Zero velocity until the vehicle is still (a hover that is still braking measures its braking, not the
+        IMU's biases), for SETTLE_MAX_S at most."""
+        t0 = self._hover_t0 = self._imu_time_now()
+        state = {}
+
+        def still(t: float) -> bool:
+            if self._stopped(t, math.inf, state, STILL_MPS):
+                return True
+            if t - t0 > SETTLE_MAX_S:
+                raise PilotError(f"vehicle does not hold still in GUIDED ({np.linalg.norm(self.tm.vel_ned_mps):.1f} "
+                                 f"m/s after {SETTLE_MAX_S:g} s of zero velocity)")
+            return False
+        self._stream(lambda t: np.zeros(3), yaw_rad, until=still, guard=lambda t: self._fit())
+
+    def _imu_time_now(self) -> float:
+        """The vehicle time of the next IMU sample."""
+        self._wait_for({self.imu_stream}, self.imu_stream)
+        return self._imu[-1][0]
+
+    def _stream(self, velocity, yaw_rad: float, until, guard) -> None:
+        """Send velocity(t) with the heading held at SETPOINT_HZ of IMU time until until(t), guard(t) checking each
+        IMU sample; every stream must keep coming (a silence of timeout_s is an error)."""
+        next_s = -math.inf
         while True:
-            msg = self._recv(["SCALED_IMU", "LOCAL_POSITION_NED", "ATTITUDE"], deadline)
-            t_boot = msg.time_boot_ms / 1000.0
-            kind = msg.get_type()
-            if kind == "ATTITUDE":
-                attitude = _finite([msg.roll, msg.pitch, msg.yaw], "ATTITUDE")
-                continue
-            if kind == "LOCAL_POSITION_NED":
-                vel = _finite([msg.vx, msg.vy, msg.vz], "LOCAL_POSITION_NED")
-                ned = _finite([msg.x, msg.y, msg.z], "LOCAL_POSITION_NED")
-                if start is None:
-                    vel0 = vel
-                else:
-                    pos_t.append(t_boot - start)
-                    pos.append(ned)
-                    moving = np.linalg.norm(vel) > STOPPED_MPS
-                    if t_boot - start > ends[-1]:
-                        stopped_since = None if moving else (stopped_since or t_boot)
-                        if (stopped_since and t_boot - stopped_since > 0.5) or t_boot - start > ends[-1] + SETTLE_MAX_S:
-                            break
-                continue
-            if start is None:   # SCALED_IMU: the maneuver starts with the first sample once the state is known
-                if attitude is None or vel0 is None:
-                    continue
-                start = t_boot
-            t = t_boot - start
-            imu_t.append(t)
-            imu_f.append(_finite([msg.xacc, msg.yacc, msg.zacc], "SCALED_IMU") * (G_MPS2 / 1000.0))
-            imu_w.append(_finite([msg.xgyro, msg.ygyro, msg.zgyro], "SCALED_IMU") / 1000.0)
-            if t >= next_setpoint:
-                leg = int(np.searchsorted(ends, t, side="right"))
-                v = (0.0, 0.0, 0.0) if leg >= len(ends) else \
-                    (maneuver.legs[leg].v_north_mps, maneuver.legs[leg].v_east_mps, maneuver.legs[leg].v_down_mps)
-                self.conn.mav.set_position_target_local_ned_send(int(t_boot * 1000), *self.target,
-                                                                 mav.MAV_FRAME_LOCAL_NED, VELOCITY_ONLY,
-                                                                 0, 0, 0, *v, 0, 0, 0, 0, 0)
-                next_setpoint += 1.0 / SETPOINT_HZ
-        ins = integrate(np.array(imu_t), np.array(imu_f), np.array(imu_w), c_nb0=_c_nb(*attitude), vel0_ned_mps=vel0)
-        return FlownManeuver(ins, start, np.array(pos), np.array(pos_t))
+            self._wait_for({self.imu_stream}, self.imu_stream)
+            t = self._imu[-1][0]
+            self._check_streams()
+            guard(t)
+            if until(t):
+                return
+            if t >= next_s:
+                v = velocity(t)
+                self.conn.mav.set_position_target_local_ned_send(int(t * 1000) & 0xFFFFFFFF, *self.target,
+                                                                 mav.MAV_FRAME_LOCAL_NED, VELOCITY_AND_YAW,
+                                                                 0, 0, 0, *v, 0, 0, 0, yaw_rad, 0)
+                next_s = t + 1.0 / SETPOINT_HZ
+
+    def _check_streams(self) -> None:
+        now = time.monotonic()
+        for name in ("ATTITUDE", "LOCAL_POSITION_NED", "GLOBAL_POSITION_INT", "HEARTBEAT"):
+            silent = now - self.tm.last_seen_s.get(name, now)
+            if silent > self.timeout_s:
+                raise PilotError(f"no {name} from the vehicle in {silent:.1f} s")
+
+    def _fit(self) -> None:
+        tm = self.tm
+        if not tm.armed:
+            raise PilotError("vehicle disarmed")
+        if tm.custom_mode != GUIDED:
+            raise PilotError(f"vehicle left GUIDED (now mode {tm.custom_mode}): a pilot or a failsafe took over")
+        low = self.limits.min_altitude_m - HEIGHT_MARGIN_M
+        if tm.height_above_home_m < low:
+            raise PilotError(f"vehicle down to {tm.height_above_home_m:.1f} m above home (safe height {low:g} m)")
+
+    def _hovering(self, t: float) -> None:
+        self._fit()
+        speed = float(np.linalg.norm(self.tm.vel_ned_mps))
+        if speed > HOVER_MAX_SPEED_MPS and self._imu[-1][0] - self._hover_t0 > 1.5:
+            raise PilotError(f"vehicle does not hold still in GUIDED ({speed:.1f} m/s with zero velocity asked)")
+
+    def _maneuvering(self, t_man: float | None, plan: _PlannedVelocity, p0: np.ndarray) -> None:
+        self._fit()
+        tm = self.tm
+        out_m = math.hypot(*(tm.pos_ned_m[:2] - p0[:2]))
+        if out_m > self.limits.geofence_radius_m:
+            raise PilotError(f"vehicle {out_m:.0f} m from the start, outside the {self.limits.geofence_radius_m:g} m "
+                             "geofence")
+        if t_man is None:
+            return
+        off = float(np.linalg.norm(tm.vel_ned_mps - plan.velocity(t_man)))
+        if off <= OBEY_TOLERANCE_MPS:
+            self._obey_since = None
+        elif self._obey_since is None:
+            self._obey_since = t_man
+        elif t_man - self._obey_since > OBEY_GRACE_S:
+            raise PilotError(f"vehicle does not follow the setpoints ({off:.1f} m/s off the plan for "
+                             f"{t_man - self._obey_since:.1f} s)")
+
+    def _stopped(self, t: float, plan_end_s: float, state: dict, below_mps: float = STOPPED_MPS) -> bool:
+        moving = float(np.linalg.norm(self.tm.vel_ned_mps)) > below_mps
+        state["since"] = None if moving else (state.get("since") or t)
+        return (state["since"] is not None and t - state["since"] > STILL_S) or t - plan_end_s > SETTLE_MAX_S
+
+    def _hold(self) -> None:
+        """Zero velocity, heading free: a few setpoints so the vehicle stops whatever it was told last."""
+        for _ in range(3):
+            self.conn.mav.set_position_target_local_ned_send(0, *self.target, mav.MAV_FRAME_LOCAL_NED,
+                                                             VELOCITY_AND_YAW | 0b0100_0000_0000,
+                                                             0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)
 
 
-def _finite(values, what: str) -> np.ndarray:
-    a = np.array(values, dtype=float)
-    if not np.all(np.isfinite(a)):
-        raise PilotError(f"vehicle sent a non-finite {what}")
-    return a
+class _PlannedVelocity:
+    """The maneuver's velocity legs as setpoints, and the velocity its plan (under the acceleration limit) has."""
 
+    def __init__(self, maneuver: Maneuver):
+        self.legs = maneuver.legs
+        self.ends_s = np.cumsum([leg.duration_s for leg in maneuver.legs])
+        self.t_s = maneuver.t_s
+        pos = np.column_stack([maneuver.north_m, maneuver.east_m, maneuver.down_m])
+        self.vel = np.gradient(pos, maneuver.t_s, axis=0)
 
-def _c_nb(roll: float, pitch: float, yaw: float) -> np.ndarray:
-    """Body (FRD) to NED rotation from Euler angles (ZYX)."""
-    cr, sr, cp, sp, cy, sy = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw)
-    return np.array([[cp * cy, sr * sp * cy - cr * sy, cr * sp * cy + sr * sy],
-                     [cp * sy, sr * sp * sy + cr * cy, cr * sp * sy - sr * cy],
-                     [-sp, sr * cp, cr * cp]])
+    def setpoint(self, t_s: float) -> np.ndarray:
+        k = int(np.searchsorted(self.ends_s, t_s, side="right"))
+        if k >= len(self.legs):
+            return np.zeros(3)
+        leg = self.legs[k]
+        return np.array([leg.v_north_mps, leg.v_east_mps, leg.v_down_mps])
+
+    def velocity(self, t_s: float) -> np.ndarray:
+        return np.array([np.interp(t_s, self.t_s, self.vel[:, k]) for k in range(3)])

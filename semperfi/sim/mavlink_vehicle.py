@@ -2,11 +2,14 @@
 
 It listens on UDP HOST:PORT and answers the last peer that sent it valid MAVLink (the ground station or companion
 computer); every datagram is parsed on its own, so garbage in one cannot swallow the frames of the next. It starts
-airborne, armed and holding position (LOITER) at `altitude_m`; like ArduCopter it obeys SET_POSITION_TARGET_LOCAL_NED
-(velocity or position, MAV_FRAME_LOCAL_NED) only in GUIDED mode, set with SET_MODE or COMMAND_LONG
-MAV_CMD_DO_SET_MODE (custom mode 4), and holds position when velocity setpoints stop for SETPOINT_TIMEOUT_S. It
-reports HEARTBEAT (1 Hz), GLOBAL_POSITION_INT, LOCAL_POSITION_NED, ATTITUDE (10 Hz) and SCALED_IMU (50 Hz: mG,
-mrad/s) from the true state and the IMU error model.
+airborne, armed and holding position (LOITER) at `altitude_m` (or, airborne=False, disarmed on the ground, where it
+accepts GUIDED and ignores setpoints, as ArduCopter does); like ArduCopter it obeys SET_POSITION_TARGET_LOCAL_NED
+(velocity or position, MAV_FRAME_LOCAL_NED, and the heading when its yaw is not masked; without one it turns to
+face its travel) only in GUIDED mode, set with SET_MODE or COMMAND_LONG MAV_CMD_DO_SET_MODE (custom mode 4), and
+holds position when velocity setpoints stop for SETPOINT_TIMEOUT_S. Like ArduCopter it sends only HEARTBEAT (1 Hz)
+until asked: MAV_CMD_SET_MESSAGE_INTERVAL sets the rate of HIGHRES_IMU, SCALED_IMU (mG, mrad/s), ATTITUDE,
+LOCAL_POSITION_NED, GLOBAL_POSITION_INT and EXTENDED_SYS_STATE (at most PHYSICS_HZ), all from the true state and
+the IMU error model (which tilts, turns and drifts as SITL's does: multicopter.py).
 
 The other end is assumed hostile: undecodable bytes, bad CRCs, non-finite or out-of-frame setpoints and unknown
 commands are counted in `rejected` (and logged), never acted on, and never stop the loop. Time runs `time_scale`
@@ -30,9 +33,11 @@ from .multicopter import ImuErrors, Multicopter, VehicleParams
 
 log = logging.getLogger(__name__)
 
-PHYSICS_HZ = 50                    # one physics step per IMU sample
-TELEMETRY_EVERY = 5                # GLOBAL_POSITION_INT, LOCAL_POSITION_NED, ATTITUDE at 10 Hz
-HEARTBEAT_EVERY = 50               # 1 Hz
+PHYSICS_HZ = 50                    # one physics step per IMU sample: the fastest any stream goes
+HEARTBEAT_EVERY = 50               # 1 Hz, the one message sent unasked
+STREAMABLE = {mav.MAVLINK_MSG_ID_HIGHRES_IMU, mav.MAVLINK_MSG_ID_SCALED_IMU, mav.MAVLINK_MSG_ID_ATTITUDE,
+              mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED, mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+              mav.MAVLINK_MSG_ID_EXTENDED_SYS_STATE}
 MODES = {"STABILIZE": 0, "GUIDED": 4, "LOITER": 5, "RTL": 6, "LAND": 9}   # ArduCopter's custom modes
 SETPOINT_TIMEOUT_S = 3.0           # ArduCopter stops after 3 s without a velocity command
 MAX_SPEED_MPS = 10.0
@@ -40,6 +45,7 @@ POSITION_GAIN_PER_S = 1.0          # a position setpoint becomes a velocity comm
 G_MPS2 = 9.80665
 _IGNORE_POSITION = 0b111           # type_mask bits 0-2: ignore x, y, z
 _IGNORE_VELOCITY = 0b111000        # bits 3-5: ignore vx, vy, vz
+_IGNORE_YAW = 0b100_0000_0000      # bit 10
 
 
 class MavlinkVehicle:
@@ -47,7 +53,7 @@ class MavlinkVehicle:
 
     def __init__(self, port: int, host: str = "127.0.0.1", seed: int = 0, origin=(42.3398, -71.0892, 10.0),
                  altitude_m: float = 50.0, heading_rad: float = 0.0, time_scale: float = 1.0,
-                 params=VehicleParams(), imu=ImuErrors()):
+                 params=VehicleParams(), imu=ImuErrors(), airborne: bool = True):
         if not (0 < time_scale <= 100):
             raise ValueError(f"time_scale must be in (0, 100], got {time_scale}")
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -56,15 +62,18 @@ class MavlinkVehicle:
         self.peer = None   # where telemetry goes: the last address that sent valid MAVLink
         self.mav = mav.MAVLink(self, srcSystem=1, srcComponent=1)
         self.origin = origin
-        self.vehicle = Multicopter(seed, heading_rad, params, imu, pos_ned_m=(0.0, 0.0, -altitude_m))
+        self.vehicle = Multicopter(seed, heading_rad, params, imu, pos_ned_m=(0.0, 0.0, -altitude_m if airborne else 0.0))
         self.time_scale = float(time_scale)
-        self.mode = MODES["LOITER"]
-        self.armed = True
+        self.mode = MODES["LOITER"] if airborne else MODES["STABILIZE"]
+        self.armed = airborne
+        self.on_ground = not airborne          # it never takes off: the flight side must refuse it
+        self.every: dict[int, int] = {}        # message id -> physics steps between sends (asked for)
         self.t_s = 0.0
         self._k = 0
         self.rejected = 0
         self.setpoints = 0
         self._target_vel = np.zeros(3)
+        self._target_yaw: float | None = None
         self._target_pos: np.ndarray | None = self.vehicle.pos_ned_m.copy()   # LOITER holds where it is
         self._last_setpoint_s = -math.inf
         self._stop = threading.Event()
@@ -103,23 +112,29 @@ class MavlinkVehicle:
         """One physics step (1 / PHYSICS_HZ of vehicle time): what came in, the motion, what goes out. The closed
         loop's world calls it as its signal time advances, so the vehicle's time is the signal's."""
         self._receive()
-        accel, gyro = self.vehicle.step(self._command(), 1.0 / PHYSICS_HZ)
+        if self.on_ground:
+            accel, gyro = self.vehicle.rest(1.0 / PHYSICS_HZ)
+        else:
+            velocity, yaw = self._command()
+            accel, gyro = self.vehicle.step(velocity, 1.0 / PHYSICS_HZ, yaw)
         self._k += 1
         self.t_s = self._k / PHYSICS_HZ
         self._send(self._k, accel, gyro)
 
-    def _command(self) -> np.ndarray:
-        """The velocity the autopilot commands now: the GUIDED velocity (until it times out) or toward a position."""
+    def _command(self) -> tuple[np.ndarray, float | None]:
+        """The velocity and heading the autopilot commands now: the GUIDED velocity (until it times out) or toward
+        a position; the heading commanded, else None (face the travel) in GUIDED and the heading held otherwise."""
         v = self.vehicle
+        yaw = self._target_yaw if self.mode == MODES["GUIDED"] else v.heading_rad
         if self.mode == MODES["GUIDED"] and self._target_pos is None:
             if self.t_s - self._last_setpoint_s <= SETPOINT_TIMEOUT_S:
-                return self._target_vel
+                return self._target_vel, yaw
             self._target_pos = v.pos_ned_m.copy()   # hold where the commands stopped
         if self._target_pos is None:
             self._target_pos = v.pos_ned_m.copy()
         cmd = POSITION_GAIN_PER_S * (self._target_pos - v.pos_ned_m)
         speed = np.linalg.norm(cmd)
-        return cmd if speed <= MAX_SPEED_MPS else cmd * (MAX_SPEED_MPS / speed)
+        return (cmd if speed <= MAX_SPEED_MPS else cmd * (MAX_SPEED_MPS / speed)), yaw
 
     # -- what comes in -----------------------------------------------------------------------------------------
     def _reject(self, why: str) -> None:
@@ -163,6 +178,7 @@ class MavlinkVehicle:
         if custom_mode != self.mode:
             self._target_pos = self.vehicle.pos_ned_m.copy() if custom_mode != MODES["GUIDED"] else None
             self._target_vel = np.zeros(3)
+            self._target_yaw = None
             self._last_setpoint_s = -math.inf
         self.mode = int(custom_mode)
         return True
@@ -173,13 +189,38 @@ class MavlinkVehicle:
         elif msg.command == mav.MAV_CMD_COMPONENT_ARM_DISARM:
             ok = msg.param1 in (0.0, 1.0) and (msg.param1 == 1.0 or self.vehicle.pos_ned_m[2] > -0.5)   # no disarm aloft
             self.armed = self.armed if not ok else msg.param1 == 1.0
+        elif msg.command == mav.MAV_CMD_SET_MESSAGE_INTERVAL:
+            ok = self._interval(msg.param1, msg.param2)
+            if ok is None:
+                self._reject(f"an interval for message {msg.param1!r}")
+                self.mav.command_ack_send(msg.command, mav.MAV_RESULT_UNSUPPORTED)
+                return
         else:
             self._reject(f"command {msg.command}")
             self.mav.command_ack_send(msg.command, mav.MAV_RESULT_UNSUPPORTED)
             return
         self.mav.command_ack_send(msg.command, mav.MAV_RESULT_ACCEPTED if ok else mav.MAV_RESULT_DENIED)
 
+    def _interval(self, msg_id: float, interval_us: float) -> bool | None:
+        """A stream's rate: interval_us > 0 sets it (at most PHYSICS_HZ), -1 stops it, 0 is the default (off, as
+        ArduPilot's stream rates are); None for a message it cannot send."""
+        if not (math.isfinite(msg_id) and int(msg_id) in STREAMABLE and math.isfinite(interval_us)):
+            return None
+        if interval_us > 0:
+            self.every[int(msg_id)] = max(1, int(round(interval_us * 1e-6 * PHYSICS_HZ)))
+        elif interval_us in (0, -1):
+            self.every.pop(int(msg_id), None)
+        else:
+            return False
+        return True
+
+    def _due(self, k: int, msg_id: int) -> bool:
+        every = self.every.get(msg_id)
+        return every is not None and k % every == 0
+
     def _setpoint(self, msg) -> None:
+        if self.on_ground:
+            return self._reject("setpoint on the ground")   # ArduCopter ignores them until it has taken off
         if self.mode != MODES["GUIDED"] or not self.armed:
             return self._reject("setpoint outside GUIDED mode")
         if msg.coordinate_frame != mav.MAV_FRAME_LOCAL_NED:
@@ -189,6 +230,8 @@ class MavlinkVehicle:
         use_pos, use_vel = not msg.type_mask & _IGNORE_POSITION, not msg.type_mask & _IGNORE_VELOCITY
         if not (use_pos or use_vel) or not np.all(np.isfinite(pos if use_pos else vel)):
             return self._reject("setpoint with nothing usable or a non-finite value")
+        yaw = float(msg.yaw)
+        self._target_yaw = yaw if not msg.type_mask & _IGNORE_YAW and math.isfinite(yaw) else None
         if use_pos:
             self._target_pos = pos
         else:
@@ -207,17 +250,26 @@ class MavlinkVehicle:
                 base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (mav.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0)
                 m.heartbeat_send(mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_ARDUPILOTMEGA, base, self.mode,
                                  mav.MAV_STATE_ACTIVE)
-            if k % TELEMETRY_EVERY == 0:
-                n, e, d = v.pos_ned_m
+            n, e, d = v.pos_ned_m
+            vn, ve, vd = v.vel_ned_mps
+            if self._due(k, mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT):
                 lat, lon, alt = pymap3d.ned2geodetic(n, e, d, *self.origin)
-                vn, ve, vd = v.vel_ned_mps
                 hdg = int(round(math.degrees(v.heading_rad) * 100)) % 36000
                 m.global_position_int_send(ms, int(round(lat * 1e7)), int(round(lon * 1e7)), int(round(alt * 1e3)),
                                            int(round(-d * 1e3)), *(int(round(c * 100)) for c in (vn, ve, vd)), hdg)
+            if self._due(k, mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED):
                 m.local_position_ned_send(ms, n, e, d, vn, ve, vd)
-                m.attitude_send(ms, 0.0, 0.0, v.heading_rad, 0.0, 0.0, 0.0)
-            acc_mg = np.clip(np.round(accel_mps2 / G_MPS2 * 1000), -32768, 32767).astype(int)
-            gyro_mrad = np.clip(np.round(gyro_rps * 1000), -32768, 32767).astype(int)
-            m.scaled_imu_send(ms, *acc_mg.tolist(), *gyro_mrad.tolist(), 0, 0, 0, 0)
+            if self._due(k, mav.MAVLINK_MSG_ID_ATTITUDE):
+                m.attitude_send(ms, *v.roll_pitch_yaw_rad, *v.rates_body_rps)   # the autopilot's view: true here
+            if self._due(k, mav.MAVLINK_MSG_ID_EXTENDED_SYS_STATE):
+                m.extended_sys_state_send(mav.MAV_VTOL_STATE_UNDEFINED, mav.MAV_LANDED_STATE_ON_GROUND
+                                          if self.on_ground else mav.MAV_LANDED_STATE_IN_AIR)
+            if self._due(k, mav.MAVLINK_MSG_ID_HIGHRES_IMU):
+                m.highres_imu_send(int(round(self.t_s * 1e6)), *accel_mps2.tolist(), *gyro_rps.tolist(),
+                                   0, 0, 0, 0, 0, 0, 0, 0b111111)
+            if self._due(k, mav.MAVLINK_MSG_ID_SCALED_IMU):
+                acc_mg = np.clip(np.round(accel_mps2 / G_MPS2 * 1000), -32768, 32767).astype(int)
+                gyro_mrad = np.clip(np.round(gyro_rps * 1000), -32768, 32767).astype(int)
+                m.scaled_imu_send(ms, *acc_mg.tolist(), *gyro_mrad.tolist(), 0, 0, 0, 0)
         except (OSError, struct.error):
             pass   # no ground station yet, or a value out of a field's range (not sent)
