@@ -24,6 +24,7 @@ import numpy as np
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mav
 
+from ..address import parse_address
 from .deadreckoning import HoverBias, InsTrack, bias_between, hover_bias, integrate
 from .maneuver import Maneuver, ManeuverLimits
 from .telemetry import IMU_FALLBACK, MSG_ID, STREAMS_HZ, Telemetry, TelemetryError, c_nb
@@ -69,29 +70,10 @@ class FlownManeuver:
     bias: HoverBias                # what the hover measured and the track took off
 
 
-NETWORK_FORMS = ("tcp", "tcpin", "udp", "udpin", "udpout", "udpbcast")
-
-
 def check_vehicle_url(url: str) -> str:
-    """A vehicle address as ArduPilot users type it: tcp:HOST:PORT, udpin:HOST:PORT, udpout:HOST:PORT (udp: is
-    udpin), or a serial device (/dev/ttyACM0, COM3, optionally ,BAUD); ValueError (one line) for anything else."""
-    form, _, rest = url.partition(":")
-    if form in NETWORK_FORMS:
-        host, _, port = rest.rpartition(":")
-        if not host or not port.isdigit() or not 0 < int(port) < 65536:
-            raise ValueError(f"vehicle address {url!r}: expected {form}:HOST:PORT with a port of 1-65535")
-        return url
-    device, _, baud = url.partition(",")
-    if device.startswith("/dev/") or device.upper().startswith("COM"):
-        if baud and not (baud.isdigit() and 1200 <= int(baud) <= 4_000_000):
-            raise ValueError(f"vehicle address {url!r}: the baud rate after ',' must be 1200 to 4000000")
-        try:
-            import serial  # noqa: F401 -- pymavlink opens serial ports through pyserial
-        except ImportError:
-            raise ValueError(f"a serial vehicle ({device}) needs pyserial: pip install pyserial") from None
-        return url
-    raise ValueError(f"vehicle address {url!r}: expected tcp:HOST:PORT, udpin:HOST:PORT, udpout:HOST:PORT or a "
-                     "serial device such as /dev/ttyACM0")
+    """A vehicle address as ArduPilot users type it (address.parse_address); ValueError (one line) otherwise."""
+    parse_address(url, "vehicle address")
+    return url
 
 
 class Pilot:
