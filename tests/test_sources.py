@@ -169,19 +169,36 @@ def test_a_stalled_standard_input_is_lost_with_one_line_not_a_hang(assisted):
 
 
 def test_an_interrupted_run_keeps_its_outputs_and_exits_130(assisted):
-    """Issue 23, item 6: Ctrl-C mid-run exited 0 (and during acquisition said "no satellite signal"). The samples come
-    through a pipe that stays open, so the signal always lands mid-run: while the receiver waits for more."""
+    """Issue 23, item 6: Ctrl-C mid-run exited 0 (and during acquisition said "no satellite signal"). The samples keep
+    coming through the pipe (the recording over and over, a slice at a time) until the receiver is interrupted, so the
+    signal lands mid-run however slowly a loaded machine processes, and the input never stalls first."""
     import signal
+    import threading
     import time
     d, nav = assisted
-    data = (d / "a.bin").read_bytes()[:int(5.0 * FS) * 2]
+    data = (d / "a.bin").read_bytes()
+    slice_bytes = int(0.5 * FS) * 2
     with open(d / "int.err", "wb") as stderr:
         proc = subprocess.Popen([sys.executable, "-m", "semperfi.cli", "run", "-", "--fs", str(FS), "--format",
                                  "ibyte", "--nav", str(nav), "--out", str(d / "interrupted"), "--defense", "off"],
                                 stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=stderr)
+        stop = threading.Event()
+
+        def feed():
+            k = 0
+            try:
+                while not stop.is_set():
+                    start = (k * slice_bytes) % (len(data) - slice_bytes)
+                    proc.stdin.write(data[start:start + slice_bytes])
+                    proc.stdin.flush()
+                    k += 1
+                    time.sleep(0.1)
+            except (BrokenPipeError, ValueError, OSError):   # the receiver is gone
+                pass
+
+        feeder = threading.Thread(target=feed, daemon=True)
+        feeder.start()
         try:
-            proc.stdin.write(data)
-            proc.stdin.flush()
             events = d / "interrupted" / "events.jsonl"
             deadline = time.monotonic() + 120      # until the receiver has acquired: it is running
             while time.monotonic() < deadline and not (events.is_file() and "tracking_start" in events.read_text()):
@@ -189,8 +206,13 @@ def test_an_interrupted_run_keeps_its_outputs_and_exits_130(assisted):
             proc.send_signal(signal.SIGINT)
             proc.wait(timeout=60)
         finally:
+            stop.set()
             proc.kill()
-            proc.stdin.close()
+            feeder.join(10)
+            try:
+                proc.stdin.close()
+            except OSError:
+                pass
     err = (d / "int.err").read_text()
     assert proc.returncode == 130 and err.strip().count("\n") == 0 and "interrupted" in err, (proc.returncode, err)
     assert [e for e in _events(d / "interrupted") if e["event"] == "interrupted"]
