@@ -6,6 +6,7 @@ import warnings
 import click
 
 from . import __version__
+from .receiver.fix_stream import RATE_HZ
 from .errors import (EXIT_BAD_INPUT, EXIT_INPUT_LOST, EXIT_INPUT_SHORT, EXIT_INTERNAL, EXIT_INTERRUPTED,
                      EXIT_NO_SIGNAL)
 
@@ -241,8 +242,12 @@ def acquire(file, fs_hz, fmt, iq_swap, if_hz, prn_text, start_s, coherent_ms, no
 @click.option("--nmea-out", "nmea_out_url", metavar="URL",
               help="every fix as NMEA GGA+RMC at 10 Hz to tcp:HOST:PORT, udpout:HOST:PORT or a serial device "
                    "(marked invalid while spoofing is suspected)")
+@click.option("--fix-rate", "fix_rate_hz", type=click.FloatRange(1.0, 100.0), default=RATE_HZ, show_default=True,
+              help="messages a second to --mavlink-gps and --nmea-out (an autopilot simulated N times faster than "
+                   "real time wants N times more)")
 def run(file, fs_hz, fmt, iq_swap, if_hz, nav_path, out_dir, config_path, defense, adversarial, sets, skip_s,
-        duration_s, fs_out_hz, imu_path, link_addr, link_key_path, mavlink_gps_url, nmea_out_url) -> None:
+        duration_s, fs_out_hz, imu_path, link_addr, link_key_path, mavlink_gps_url, nmea_out_url,
+        fix_rate_hz) -> None:
     """Receive FILE (a recording, - for standard input, or rtl_tcp://HOST:PORT): acquisition, tracking, navigation,
     PVT; fixes.csv, NMEA, GPX, GeoJSON, RINEX observations, events.jsonl in --out."""
     import functools
@@ -256,7 +261,7 @@ def run(file, fs_hz, fmt, iq_swap, if_hz, nav_path, out_dir, config_path, defens
         cfg = _receiver_config(config_path, sets)
         imu = read_imu_csv(imu_path).shifted(-skip_s) if imu_path else None   # its t_s counts from FILE's start
         link = _flight_link(link_addr, link_key_path)
-        streams = _fix_streams(mavlink_gps_url, nmea_out_url)
+        streams = _fix_streams(mavlink_gps_url, nmea_out_url, fix_rate_hz, out_dir)
         try:
             summary = run_file(file, _sample_format(fmt, iq_swap), fs_hz, if_hz, cfg, out_dir, nav_path,
                                live=sys.stderr.isatty(),
@@ -277,14 +282,20 @@ def run(file, fs_hz, fmt, iq_swap, if_hz, nav_path, out_dir, config_path, defens
     _fail_after(summary)
 
 
-def _fix_streams(mavlink_gps_url, nmea_out_url) -> list:
-    """The fix streams asked for: (FixStream, its sink), each opened now so a wrong address fails before the run."""
+def _fix_streams(mavlink_gps_url, nmea_out_url, rate_hz: float, out_dir: str) -> list:
+    """The fix streams asked for: (FixStream, its sink), each opened now so a wrong address fails before the run.
+    Every GPS_INPUT sent is also logged in out_dir/gps_input.csv."""
     from .receiver.fix_stream import FixStream
     from .receiver.gps_input import MavlinkGpsOut
     from .receiver.nmea_out import NmeaOut
-    sinks = ([MavlinkGpsOut(mavlink_gps_url)] if mavlink_gps_url else []) + \
-        ([NmeaOut(nmea_out_url)] if nmea_out_url else [])
-    return [(FixStream(sink.send), sink) for sink in sinks]
+    from pathlib import Path
+    sinks = []
+    if mavlink_gps_url:
+        Path(out_dir).mkdir(parents=True, exist_ok=True)
+        sinks.append(MavlinkGpsOut(mavlink_gps_url, log_path=Path(out_dir) / "gps_input.csv"))
+    if nmea_out_url:
+        sinks.append(NmeaOut(nmea_out_url))
+    return [(FixStream(sink.send, rate_hz), sink) for sink in sinks]
 
 
 @main.command()
@@ -545,11 +556,26 @@ def world(scenario, mavlink_port, truth_path, altitude_m, seed, tee_path, sets) 
 @click.option("--out", "out_dir", default="out/demo", show_default=True, type=click.Path(file_okay=False))
 @click.option("--duration", "duration_s", type=float, default=95.0, show_default=True)
 @click.option("--set", "sets", multiple=True, metavar="SECTION.KEY=VALUE", help="override a scenario key")
-def demo(out_dir, duration_s, sets) -> None:
-    """The main job on its built-in scenario: a spoofing attack, a conventional receiver it fools, and SemperFi."""
-    from .eval.demo import run_demo
-
+@click.option("--autopilot", "autopilot_path", type=click.Path(dir_okay=False, exists=True),
+              help="fly the closed loop on this ArduCopter SITL executable (copter.parm beside it is loaded): "
+                   "SemperFi is its only GPS (--duration does not apply: the loop ends after the recovery)")
+@click.option("--speedup", type=click.FloatRange(0.1, 10.0), default=1.0, show_default=True,
+              help="with --autopilot: SITL's speed-up over real time (the world slows it down no further)")
+@click.option("--instance", type=click.IntRange(0, 50), default=6, show_default=True,
+              help="with --autopilot: SITL's -I (its TCP ports are 5760 + 10 x instance, +2, +3)")
+def demo(out_dir, duration_s, sets, autopilot_path, speedup, instance) -> None:
+    """The main job on its built-in scenario: a spoofing attack, a conventional receiver it fools, and SemperFi.
+    With --autopilot: the same attack on ArduCopter SITL in flight, SemperFi as its GPS."""
     try:
+        if autopilot_path:
+            from .eval.autopilot_loop import run_autopilot_loop, report
+            result = run_autopilot_loop(out_dir, autopilot_path, speedup, instance, list(sets), log=click.echo)
+            for line in report(result):
+                click.echo(line)
+            if result.errors:
+                _fail(f"the loop did not finish: {result.errors[0]}", EXIT_INTERNAL)
+            return
+        from .eval.demo import run_demo
         for line in run_demo(out_dir, duration_s, list(sets), progress=sys.stderr.isatty()):
             click.echo(line)
     except (ValueError, OSError) as exc:

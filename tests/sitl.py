@@ -1,15 +1,15 @@
-"""What the ArduCopter SITL tests share: where SITL is, and scripts/sitl-fly (its Sitl process, its Observer) as a
-module."""
+"""Where the ArduCopter SITL the tests fly against is (../shared/sitl)."""
 
-import importlib.machinery
-import importlib.util
 from pathlib import Path
 
 SITL_DIR = Path(__file__).parents[1].parent / "shared" / "sitl"
+SITL_BINARY = SITL_DIR / "arducopter"
 
 
 def sitl_fly():
     """scripts/sitl-fly, imported (it has no .py suffix)."""
+    import importlib.machinery
+    import importlib.util
     path = Path(__file__).parents[1] / "scripts" / "sitl-fly"
     loader = importlib.machinery.SourceFileLoader("sitl_fly", str(path))
     module = importlib.util.module_from_spec(importlib.util.spec_from_loader("sitl_fly", loader))

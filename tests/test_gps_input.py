@@ -8,7 +8,7 @@ import pytest
 from pymavlink.dialects.v20 import common as mav
 from pynmeagps import NMEAReader
 
-from semperfi.receiver.fix_stream import STALE_S, FixStream, Pacer
+from semperfi.receiver.fix_stream import BACKLOG, STALE_S, FixStream, Pacer
 from semperfi.receiver.gps_input import FIX_3D, FIX_NO_FIX, MavlinkGpsOut, gps_input
 from semperfi.receiver.nmea_out import NmeaOut
 
@@ -23,15 +23,15 @@ class FakeClock:
         return self.t
 
 
-def test_a_good_fix_is_a_3d_fix_with_its_protection_levels_as_accuracies():
-    fix = _fix(vel_east_m_s=4.0, hpl_m=6.5, vpl_m=9.25, raim="pass")
+def test_a_good_fix_is_a_3d_fix_with_its_1_sigma_as_accuracies():
+    fix = _fix(vel_east_m_s=4.0, hpl_m=16.5, vpl_m=29.25, h_sigma_m=2.5, v_sigma_m=4.25, raim="pass")
     m = gps_input(fix, 1.7e9)
     assert m.fix_type == FIX_3D and m.satellites_visible == fix.n_sats
     assert m.lat == round(LAT_DEG * 1e7) and m.lon == round(LON_DEG * 1e7) and m.alt == fix.height_m
     assert abs(m.ve - 4.0) < 1e-9 and abs(m.vn) < 1e-9 and abs(m.vd) < 1e-9
-    assert m.horiz_accuracy == 6.5 and m.vert_accuracy == 9.25 and (m.hdop, m.vdop) == (fix.hdop, fix.vdop)
+    assert m.horiz_accuracy == 2.5 and m.vert_accuracy == 4.25 and (m.hdop, m.vdop) == (fix.hdop, fix.vdop)
     assert m.time_week == WEEK and m.time_week_ms == round(TOW_S * 1e3) and m.time_usec == 1_700_000_000_000_000
-    no_levels = gps_input(_fix(), 0.0)   # no redundancy: accuracy from the DOPs
+    no_levels = gps_input(_fix(), 0.0)   # no integrity computed: accuracy from the DOPs
     assert no_levels.fix_type == FIX_3D and no_levels.horiz_accuracy == pytest.approx(5.0 * _fix().hdop)
 
 
@@ -60,18 +60,30 @@ def test_the_schedule_is_absolute_late_sends_do_not_drift_and_a_stall_does_not_b
     assert pacer.wait_s(5.0) == pytest.approx(0.1)
 
 
-def test_the_stream_sends_the_latest_fresh_fix_then_no_fix_once_it_is_stale():
+def test_the_stream_sends_each_fix_once_in_order_then_the_last_then_no_fix_once_it_is_stale():
     clock, got = FakeClock(), []
     stream = FixStream(lambda fix, unix_s: got.append(fix), clock=clock, wall=lambda: 0.0, start=False)
     stream.step()
-    first, second = _fix(t_rx_s=1.0), _fix(t_rx_s=2.0)
-    stream.update(first)
-    stream.update(second)                              # faster than real time: only the latest goes out
-    clock.t += 0.1
+    burst = [_fix(t_rx_s=1.0 + 0.1 * k) for k in range(3)]
+    for fix in burst:                                  # a chunk's fixes arrive together
+        stream.update(fix)
+    for _ in range(4):                                 # one a period, in order, then the last again
+        clock.t += 0.1
+        stream.step()
+    clock.t += STALE_S                                 # the input stalled
     stream.step()
-    clock.t += STALE_S + 0.05                          # the input stalled
-    stream.step()
-    assert got == [None, second, None] and stream.sent == 3
+    assert got == [None, *burst, burst[-1], None] and stream.sent == 6
+
+
+def test_a_backlog_is_bounded_the_newest_fixes_go_out():
+    clock, got = FakeClock(), []
+    stream = FixStream(lambda fix, unix_s: got.append(fix), clock=clock, wall=lambda: 0.0, start=False)
+    fixes = [_fix(t_rx_s=float(k)) for k in range(50)]   # a recording processed faster than real time
+    for fix in fixes:
+        stream.update(fix)
+    for _ in range(BACKLOG + 1):
+        stream.step()
+    assert got == fixes[-BACKLOG:] + [fixes[-1]]
 
 
 def test_a_dead_autopilot_link_is_counted_not_raised():
@@ -87,7 +99,7 @@ def test_gps_input_over_udp_decodes_to_the_fix():
     rx.bind(("127.0.0.1", 0))
     rx.settimeout(5.0)
     out = MavlinkGpsOut(f"udpout:127.0.0.1:{rx.getsockname()[1]}")
-    fix = _fix(vel_east_m_s=-2.0, hpl_m=7.0, vpl_m=11.0, raim="pass")
+    fix = _fix(vel_east_m_s=-2.0, hpl_m=17.0, vpl_m=21.0, h_sigma_m=7.0, v_sigma_m=11.0, raim="pass")
     out.send(fix, 1.7e9)
     out.send(_fix(state="spoofing_detected", raim="pass"), 1.7e9 + 0.1)
     parser = mav.MAVLink(None)

@@ -154,3 +154,20 @@ def test_clean_simulated_recording_passes_raim_with_realistic_protection_levels(
     assert np.all((tpl > 5.0) & (tpl < 300.0)), f"TPL {tpl.min():.1f}..{tpl.max():.1f} ns"
     assert np.all(np.abs(err_ns) <= tpl), f"time error {np.abs(err_ns).max():.1f} ns exceeds TPL"
     assert {f["time_state"] for f in fixes} == {"unverified"}   # the receiver alone checks no common delay
+
+
+def test_the_solution_sigmas_are_the_uere_times_the_dops_when_every_range_has_the_same_sigma():
+    """An autopilot's hAcc/vAcc (GPS_INPUT) are these 1 sigma values: with equal range sigmas, sigma x HDOP and
+    sigma x VDOP by the DOPs' definition; a faulty range's bound (HPL) is several times more."""
+    from semperfi.receiver.integrity import protection_levels, solution_sigmas
+    az = np.radians([0.0, 70.0, 140.0, 210.0, 280.0, 330.0, 45.0])
+    el = np.radians([80.0, 40.0, 25.0, 55.0, 15.0, 35.0, 60.0])
+    los = np.column_stack([np.cos(el) * np.sin(az), np.cos(el) * np.cos(az), np.sin(el)])
+    h = np.column_stack([-los, np.ones(len(az))])
+    q = np.linalg.inv(h.T @ h)
+    hdop, vdop = np.sqrt(q[0, 0] + q[1, 1]), np.sqrt(q[2, 2])
+    h_sigma, v_sigma, t_sigma = solution_sigmas(h, np.full(len(az), 3.0))
+    assert h_sigma == pytest.approx(3.0 * hdop) and v_sigma == pytest.approx(3.0 * vdop)
+    assert t_sigma == pytest.approx(3.0 * np.sqrt(q[3, 3]))
+    hpl, vpl = protection_levels(h, np.full(len(az), 3.0), 1e-5, 1e-3)
+    assert hpl > 2.0 * h_sigma and vpl > 2.0 * v_sigma

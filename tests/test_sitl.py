@@ -12,7 +12,8 @@ import time
 
 import pytest
 
-from sitl import SITL_DIR, sitl_fly
+from semperfi.eval.autopilot import CRUISE_S, Observer, Sitl
+from sitl import SITL_BINARY, SITL_DIR, sitl_fly
 
 pytest.importorskip("pymavlink", reason="pymavlink is not installed")
 pytest.importorskip("pymap3d", reason="pymap3d is not installed")
@@ -26,9 +27,9 @@ BRAKE = 17   # holds where it is without a pilot (LOITER would follow SITL's thr
 @pytest.fixture(scope="module")
 def sitl(tmp_path_factory):
     script = sitl_fly()
-    s = script.Sitl(INSTANCE, SPEEDUP, tmp_path_factory.mktemp("sitl"), SITL_DIR).start()
+    s = Sitl(INSTANCE, SPEEDUP, tmp_path_factory.mktemp("sitl"), SITL_BINARY).start()
     try:
-        obs = script.Observer(s.url(0), speedup=SPEEDUP)
+        obs = Observer(s.url(0), speedup=SPEEDUP)
         obs.streams()
     except BaseException:
         s.stop()
@@ -83,7 +84,7 @@ def test_a_maneuver_flown_on_arducopter_is_tracked_within_2_m_by_the_imu(sitl):
     obs.takeoff(ALTITUDE_M)
     obs.set_mode(BRAKE)   # the flight side must give it back to BRAKE
     assert obs.wait_mode(BRAKE)
-    time.sleep(script.CRUISE_S / SPEEDUP)   # cruising, not just off the takeoff: the EKF has settled
+    time.sleep(CRUISE_S / SPEEDUP)   # cruising, not just off the takeoff: the EKF has settled
     row = script.fly_one(s.url(1), obs, rng=random.Random(11))
     assert obs.wait_mode(BRAKE), f"left in mode {obs.custom_mode}"
     m = row["maneuver"]

@@ -9,7 +9,8 @@ import pytest
 from semperfi.receiver.fix_stream import FixStream
 from semperfi.receiver.gps_input import FIX_3D, MavlinkGpsOut
 
-from sitl import SITL_DIR, sitl_fly
+from semperfi.eval.autopilot import Sitl
+from sitl import SITL_BINARY, SITL_DIR
 from test_outputs import _fix
 
 pytestmark = pytest.mark.skipif(not (SITL_DIR / "arducopter").exists(), reason=f"no ArduCopter SITL at {SITL_DIR}")
@@ -20,7 +21,7 @@ GPS_RAW_INT_ID = 24
 
 @pytest.fixture(scope="module")
 def autopilot(tmp_path_factory):
-    sitl = sitl_fly().Sitl(INSTANCE, 1.0, tmp_path_factory.mktemp("sitl"), SITL_DIR, params={"GPS1_TYPE": 14})
+    sitl = Sitl(INSTANCE, 1.0, tmp_path_factory.mktemp("sitl"), SITL_BINARY, params={"GPS1_TYPE": 14})
     sitl.start()
     try:
         out = None
@@ -51,7 +52,8 @@ def _gps_raw(out, seconds: float):
 
 def test_the_autopilot_takes_our_fix_and_drops_it_while_spoofing_is_suspected(autopilot):
     import threading
-    good = _fix(lat_deg=HOME[0], lon_deg=HOME[1], height_m=HOME[2], raim="pass", hpl_m=3.0, vpl_m=5.0)
+    good = _fix(lat_deg=HOME[0], lon_deg=HOME[1], height_m=HOME[2], raim="pass", hpl_m=13.0, vpl_m=20.0,
+                h_sigma_m=3.0, v_sigma_m=5.0)
     suspect = _fix(lat_deg=HOME[0] + 0.01, lon_deg=HOME[1], state="spoofing_detected", raim="pass")
     stream = FixStream(autopilot.send)
     current = {"fix": good}

@@ -2,8 +2,11 @@
 too), paced by fix_stream.FixStream (10 Hz on the wall clock, "no fix" once the last one is stale).
 
 What the autopilot is told is only what it may trust: a 3D fix for a fix the receiver calls good (nominal,
-recovered, rectified) whose ranges pass the integrity test, with its protection levels as the accuracies (the bound, not a 1-sigma guess: the EKF then
-weighs it no more than the receiver can vouch for). While spoofing is suspected and not resolved (spoofing_detected,
+recovered, rectified) whose ranges pass the integrity test, so within its protection levels. The accuracies are the
+fix's fault-free 1 sigma (from the same weighted least squares the protection levels come from): an autopilot reads
+hAcc as 1 sigma -- ArduPilot's EKF weighs each fix by it and will not set its origin or arm while it exceeds 5 m --
+and a protection level (a bound on one faulty range's effect, several sigma) there left ArduCopter "waiting for
+home" for good on a clean sky (measured on SITL: HPL 14.7 m). While spoofing is suspected and not resolved (spoofing_detected,
 recovering) or the fix is otherwise unverified, it gets NO_FIX: a degraded 3D fix with large accuracies would still
 be fused and pull the EKF toward the attacker's position, while no fix makes the autopilot's own failsafes and dead
 reckoning take over. The moment a fix is recovered it gets the true position again.
@@ -13,6 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -21,7 +25,7 @@ from ..gps.geometry import enu_rotation
 from .types import Fix, vouched
 
 FIX_NO_FIX, FIX_3D = 1, 3          # GPS_FIX_TYPE (0 would say "no GPS connected")
-UERE_M = 5.0               # accuracy per unit of DOP when a fix has no protection level (no redundancy)
+UERE_M = 5.0               # accuracy per unit of DOP when a fix has no sigma (no integrity computed)
 SPEED_ACCURACY_M_S = 0.3   # Doppler velocity at 40-50 dB-Hz: a few cm/s per range, times a DOP of a few
 GPS_COMPONENT_ID = 220     # MAV_COMP_ID_GPS
 SERIAL_WRITE_TIMEOUT_S = 1.0
@@ -55,8 +59,8 @@ def gps_input(fix: Fix | None, unix_time_s: float) -> GpsInput:
         return GpsInput(int(unix_time_s * 1e6), 0, 0, FIX_NO_FIX, 0, 0, 0.0, 99.99, 99.99, 0.0, 0.0, 0.0,
                         99.0, 9999.0, 9999.0, 0)
     enu = enu_rotation(math.radians(fix.lat_deg), math.radians(fix.lon_deg)) @ np.asarray(fix.vel_ecef_m_s, float)
-    hacc = fix.hpl_m if math.isfinite(fix.hpl_m) else UERE_M * fix.hdop
-    vacc = fix.vpl_m if math.isfinite(fix.vpl_m) else UERE_M * fix.vdop
+    hacc = fix.h_sigma_m if math.isfinite(fix.h_sigma_m) else UERE_M * fix.hdop
+    vacc = fix.v_sigma_m if math.isfinite(fix.v_sigma_m) else UERE_M * fix.vdop
     week_ms = int(round(fix.gps_tow_s * 1e3)) % (604800 * 1000)
     if not vouched(fix):   # the receiver cannot vouch for where it says the vehicle is: nothing to fuse
         return GpsInput(int(unix_time_s * 1e6), week_ms, fix.gps_week, FIX_NO_FIX, 0, 0, 0.0, 99.99, 99.99,
@@ -68,9 +72,12 @@ def gps_input(fix: Fix | None, unix_time_s: float) -> GpsInput:
 
 
 class MavlinkGpsOut:
-    """GPS_INPUT over a MAVLink connection (pymavlink URL: udpout:HOST:PORT, tcp:HOST:PORT, a serial device)."""
+    """GPS_INPUT over a MAVLink connection (pymavlink URL: udpout:HOST:PORT, tcp:HOST:PORT, a serial device);
+    log_path: every message sent is also a row of this CSV (what the autopilot was told, for evaluation)."""
 
-    def __init__(self, url: str, system_id: int = 1):
+    LOG_COLUMNS = "unix_time_s,time_week,time_week_ms,fix_type,lat_deg,lon_deg,alt_m,h_acc_m,v_acc_m,satellites\n"
+
+    def __init__(self, url: str, system_id: int = 1, log_path: str | Path | None = None):
         from pymavlink import mavutil
         parse_address(url, "--mavlink-gps")
         try:
@@ -81,6 +88,10 @@ class MavlinkGpsOut:
         port = getattr(self.conn, "port", None)
         if hasattr(port, "write_timeout"):
             port.write_timeout = SERIAL_WRITE_TIMEOUT_S   # pymavlink's sockets are non-blocking: a serial port is not
+        self._log = None
+        if log_path is not None:
+            self._log = open(log_path, "w")
+            self._log.write(self.LOG_COLUMNS)
 
     def send(self, fix: Fix | None, unix_time_s: float) -> None:
         """FixStream's sink: the latest fresh fix (None: none) as one GPS_INPUT."""
@@ -88,6 +99,13 @@ class MavlinkGpsOut:
         self.conn.mav.gps_input_send(m.time_usec, 0, _IGNORE_YAW, m.time_week_ms, m.time_week, m.fix_type, m.lat,
                                      m.lon, m.alt, m.hdop, m.vdop, m.vn, m.ve, m.vd, m.speed_accuracy,
                                      m.horiz_accuracy, m.vert_accuracy, m.satellites_visible)
+        if self._log is not None:
+            self._log.write(f"{unix_time_s:.3f},{m.time_week},{m.time_week_ms},{m.fix_type},{m.lat / 1e7:.7f},"
+                            f"{m.lon / 1e7:.7f},{m.alt:.2f},{m.horiz_accuracy:.2f},{m.vert_accuracy:.2f},"
+                            f"{m.satellites_visible}\n")
+            self._log.flush()
 
     def close(self) -> None:
         self.conn.close()
+        if self._log is not None:
+            self._log.close()

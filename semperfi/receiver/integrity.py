@@ -68,6 +68,8 @@ class RaimResult:
     vpl_m: float
     tpl_m: float = float("nan")      # clock-bias protection level (m); nan without redundancy
     clock_sigma_m: float = float("nan")  # 1 sigma of the clock estimate, fault-free (weighted least squares covariance)
+    h_sigma_m: float = float("nan")      # 1 sigma horizontal (root of the east + north variances) and vertical
+    v_sigma_m: float = float("nan")      # errors, fault-free, same covariance
 
 
 def sigma_m(cn0_dbhz, elevation_rad, model: SigmaModel = SigmaModel()) -> np.ndarray:
@@ -152,11 +154,18 @@ def time_protection_level(h_enu, sigma, pfa: float, pmd: float) -> float:
 
 def clock_sigma(h_enu, sigma) -> float:
     """1 sigma (m) of the clock component of the weighted least squares solution, fault-free: sqrt(Q_tt)."""
+    return solution_sigmas(h_enu, sigma)[2]
+
+
+def solution_sigmas(h_enu, sigma) -> tuple[float, float, float]:
+    """1 sigma (m) of the weighted least squares solution, fault-free: horizontal sqrt(Q_ee + Q_nn), vertical
+    sqrt(Q_uu) and clock sqrt(Q_tt) -- what an accuracy estimate (an autopilot's hAcc, vAcc) means, where a
+    protection level bounds a fault."""
     h, s = np.asarray(h_enu, float), np.asarray(sigma, float)
     if len(s) < h.shape[1]:
-        return float("nan")
+        return float("nan"), float("nan"), float("nan")
     q, _, _ = _projection(h, 1.0 / s ** 2)
-    return float(np.sqrt(q[3, 3]))
+    return float(np.sqrt(q[0, 0] + q[1, 1])), float(np.sqrt(q[2, 2])), float(np.sqrt(q[3, 3]))
 
 
 def fde(h_enu, residual_m, sigma, config: IntegrityConfig = IntegrityConfig()) -> RaimResult:
@@ -184,7 +193,8 @@ def fde(h_enu, residual_m, sigma, config: IntegrityConfig = IntegrityConfig()) -
         status = "excluded" if excluded else "pass"
     hpl, vpl = protection_levels(h[use], s[use], config.pfa, config.pmd)
     tpl = time_protection_level(h[use], s[use], config.pfa, config.pmd)
-    return RaimResult(status, use, tuple(excluded), test, hpl, vpl, tpl, clock_sigma(h[use], s[use]))
+    h_sigma, v_sigma, t_sigma = solution_sigmas(h[use], s[use])
+    return RaimResult(status, use, tuple(excluded), test, hpl, vpl, tpl, t_sigma, h_sigma, v_sigma)
 
 
 def trusted(raim: str) -> bool:

@@ -100,7 +100,8 @@ def _check_fix(fix: Fix) -> tuple[np.ndarray, np.ndarray]:
     where = f"fix at t_rx_s={fix.t_rx_s!r}"
     scalars = {f.name: getattr(fix, f.name) for f in dataclasses.fields(Fix)
                if f.name not in ("pos_ecef_m", "vel_ecef_m_s", "prns", "state", "raim", "excluded_prns",
-                                 "test_statistic", "hpl_m", "vpl_m", "tpl_ns", "time_state", "clock_sigma_ns")}
+                                 "test_statistic", "hpl_m", "vpl_m", "tpl_ns", "time_state", "clock_sigma_ns",
+                                 "h_sigma_m", "v_sigma_m")}
     # RAIM values are nan without redundancy
     for name, value in scalars.items():
         try:

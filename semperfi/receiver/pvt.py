@@ -190,7 +190,8 @@ def _with_raim(observations, fix: Fix, sats: "_Satellites", model: "_Model", cfg
     prns = sats.prn[use]
     return replace(fix, raim=result.status, excluded_prns=tuple(int(prns[i]) for i in result.excluded),
                    test_statistic=result.test.statistic, hpl_m=result.hpl_m, vpl_m=result.vpl_m,
-                   tpl_ns=result.tpl_m / C * 1e9, clock_sigma_ns=result.clock_sigma_m / C * 1e9), result
+                   tpl_ns=result.tpl_m / C * 1e9, clock_sigma_ns=result.clock_sigma_m / C * 1e9,
+                   h_sigma_m=result.h_sigma_m, v_sigma_m=result.v_sigma_m), result
 
 
 def _solve_once(observations: list[Observation], t_rx_s: float, gps_week: int, iono: IonoParams | None,

@@ -58,6 +58,8 @@ class Fix:
     # or replaces it in holdover (defense/clock_guard.py)
     tpl_ns: float = float("nan")
     clock_sigma_ns: float = float("nan")  # 1 sigma of the clock bias, fault-free (the clock model's measurement noise)
+    h_sigma_m: float = float("nan")       # 1 sigma horizontal / vertical position error, fault-free (an accuracy
+    v_sigma_m: float = float("nan")       # estimate; the protection levels bound a faulty range's error)
     time_state: str = "unverified"  # nominal | holdover | unverified (TIME_STATES): whether tpl_ns bounds the time
 
 

@@ -1,0 +1,370 @@
+"""The paper's closed loop with a real autopilot: ArduCopter SITL flies with SemperFi as its only GPS.
+
+    semperfi demo --autopilot PATH/arducopter [--speedup 1] [--out out/autopilot]
+
+Four parts, as on a UAV. The autopilot (ArduCopter SITL, `GPS1_TYPE 14`) takes its GPS only from the receiver's
+MAVLink GPS_INPUT. The world renders the GPS signals (and, once the vehicle is cruising, a synchronized attacker
+1 km east at +6 dB) from where SITL's physics says the vehicle truly is (SIM_STATE, read on the autopilot's first
+link: the world may read the truth, the receiver and the flight side never do), chunk by chunk on SITL's clock, into
+the receiver's standard input. The receiver (`semperfi run -`, defended) feeds the autopilot and, on an alarm, asks
+the flight side (`semperfi companion`, on the autopilot's second link) for a maneuver over the authenticated link;
+the inertial track that comes back decides the peaks, the attacker's are cancelled, and the autopilot gets the true
+position again. This module arms, takes off, cruises, switches the attacker on, waits for the recovery, commands the
+vehicle back to where it hovered, and judges every GPS_INPUT the autopilot was given against SITL's truth.
+
+While spoofing is suspected the autopilot gets no fix and dead-reckons. ArduCopter's EKF failsafe would land it ~9 s
+into that outage (measured here), so, as the paper did on its S500, the EKF failsafe is off (`FS_EKF_THRESH 0`).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import secrets
+import socket
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import pymap3d
+from pymavlink.dialects.v20 import common as mav
+
+from ..gps.geometry import enu_rotation
+from ..gps.time import GpsTime
+from ..iq.formats import as_format, encode_samples
+from ..sim.scenario import load_scenario
+from ..sim.simulate import CHUNK_S, make_live_simulator
+from .autopilot import CRUISE_S, Observer, Sitl
+from .closed_loop import CLOSED_LOOP_SETTINGS
+
+ALTITUDE_M = 30.0
+AUTOPILOT_PARAMS = {"GPS1_TYPE": 14,       # its GPS is GPS_INPUT, ours
+                    "FS_EKF_THRESH": 0}    # no EKF failsafe while it dead-reckons through the maneuver (the paper's)
+FAR_FUTURE_S = 86400.0                     # the attacker waits until the world switches it on
+SCENE_S = 3600.0                           # the world renders until stopped; this only bounds it
+TRUTH_EVERY_S = 0.1
+STALL_S = 10.0                             # SITL silent this long (wall) is gone
+GPS_FIX_3D = 3
+
+
+@dataclass
+class LoopResult:
+    out_dir: Path
+    phases: dict = field(default_factory=dict)       # name -> signal time (s from the world's first sample)
+    gps_errors: list = field(default_factory=list)   # (t_s, fix_type, horizontal error m, h_acc m) per GPS_INPUT
+    end_error_m: float = math.nan                    # the vehicle's final distance from where it was commanded
+    errors: list = field(default_factory=list)
+
+    @property
+    def worst_used_error_m(self) -> float:
+        used = [e for _, ft, e, _ in self.gps_errors if ft >= GPS_FIX_3D]
+        return max(used) if used else math.nan
+
+
+class SitlWorld(threading.Thread):
+    """Renders cfg's scenario around SITL's vehicle into `out` on SITL's clock: chunk k is written once the truth
+    reaches its end (a slower receiver slows the world, which then lags SITL: the lag is measured, `lag_s`)."""
+
+    def __init__(self, cfg: dict, observer: Observer, out, truth_path: Path, speedup: float, log=print):
+        super().__init__(daemon=True)
+        self.log, self._told = log, 0
+        self.sim, self.motion = make_live_simulator(cfg)
+        self.fmt = as_format(cfg["signal"]["format"])
+        self.obs, self.out, self.truth_path, self.speedup = observer, out, truth_path, speedup
+        self.t_boot0_s: float | None = None
+        self.tau_s = 0.0
+        self.lag_s = 0.0
+        self.error: str | None = None
+        self._attack = threading.Event()
+        self._stop = threading.Event()
+
+    def tell(self) -> None:
+        """Hand on what the autopilot said (STATUSTEXT) since the last call."""
+        while self._told < len(self.obs.texts):
+            self.log(f"{self.tau_s:6.1f} s  autopilot: {self.obs.texts[self._told][1]}")
+            self._told += 1
+
+    def attack(self) -> None:
+        """Switch the attacker on at the next chunk."""
+        self._attack.set()
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def _truth_at(self, t_boot_s: float):
+        """ECEF position and velocity, and (lat, lon, alt), at vehicle time t_boot_s; None until SITL gets there."""
+        recent = np.array(self.obs.truth[-200:])
+        if len(recent) < 2 or recent[-1, 0] < t_boot_s:
+            return None
+        recent = recent[np.r_[True, np.diff(recent[:, 0]) > 0]]
+        lat, lon, alt, vn, ve, vd = (np.interp(t_boot_s, recent[:, 0], recent[:, k]) for k in (1, 2, 3, 13, 14, 15))
+        pos = np.array(pymap3d.geodetic2ecef(lat, lon, alt))
+        vel = enu_rotation(math.radians(lat), math.radians(lon)).T @ np.array([ve, vn, -vd])
+        return pos, vel, (lat, lon, alt)
+
+    def _wait_truth(self, tau_s: float):
+        deadline = time.monotonic() + STALL_S
+        while not self._stop.is_set():
+            state = self._truth_at(self.t_boot0_s + tau_s)
+            if state is not None:
+                return state
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"no SIM_STATE from the autopilot for {STALL_S:g} s")
+            time.sleep(0.002)
+        return None
+
+    def run(self) -> None:
+        try:
+            self._run()
+        except BrokenPipeError:
+            pass   # the receiver stopped reading
+        except Exception as exc:   # noqa: BLE001 -- reported by the loop, one line
+            self.error = f"world: {exc}"
+        finally:
+            try:
+                self.out.close()
+            except OSError:
+                pass
+
+    def _run(self) -> None:
+        while not self.obs.truth and not self._stop.wait(0.05):
+            pass
+        self.t_boot0_s = self.obs.truth[-1][0]
+        state = self._wait_truth(0.0)
+        if state is None:
+            return
+        self.motion.set_state(0.0, state[0], state[1])
+        every = int(round(TRUTH_EVERY_S / CHUNK_S))
+        with open(self.truth_path, "w", newline="") as f:
+            truth = csv.writer(f, lineterminator="\n")
+            truth.writerow(["t_s", "t_boot_s", "lat_deg", "lon_deg", "height_m"])
+            for k, chunk in enumerate(self.sim.chunks()):
+                if self._stop.is_set():
+                    return
+                self.out.write(encode_samples(chunk, self.fmt, 1.0)[0].tobytes())
+                self.tau_s = (k + 1) * CHUNK_S
+                if self._attack.is_set() and self.sim.attack.start_s > self.tau_s:
+                    self.sim.attack = replace(self.sim.attack, start_s=self.tau_s + CHUNK_S)
+                state = self._wait_truth((k + 2) * CHUNK_S)
+                if state is None:
+                    return
+                self.motion.set_state((k + 2) * CHUNK_S, state[0], state[1])
+                self.lag_s = max(self.lag_s, (self.obs.truth[-1][0] - self.t_boot0_s - self.tau_s) / self.speedup)
+                if k % every == 0:
+                    lat, lon, alt = state[2]
+                    truth.writerow([f"{(k + 2) * CHUNK_S:.2f}", f"{self.t_boot0_s + (k + 2) * CHUNK_S:.3f}",
+                                    f"{lat:.8f}", f"{lon:.8f}", f"{alt:.3f}"])
+                    f.flush()
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _drain(stream, path: Path) -> None:
+    """The flight side's report lines into a file as they come (an unread pipe would stall it)."""
+    with open(path, "w") as f:
+        for line in stream:
+            f.write(line)
+            f.flush()
+
+
+def _wait(what: str, done, timeout_s: float, world: SitlWorld, poll_s: float = 0.1) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not done():
+        world.tell()
+        if world.error or not world.is_alive():
+            raise RuntimeError(world.error or "the world stopped")
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"timed out waiting for {what} ({timeout_s:g} s)")
+        time.sleep(poll_s)
+
+
+def run_autopilot_loop(out_dir: str | Path, binary: str | Path, speedup: float = 1.0, instance: int = 6,
+                       sets: list[str] = (), seed: int = 0, maneuver_seed: int | None = None,
+                       log=lambda line: None) -> LoopResult:
+    """The whole loop; log(line) hears each phase as it happens. maneuver_seed (tests only) makes the maneuver
+    repeatable; otherwise it is the OS's cryptographic draw."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    result = LoopResult(out)
+    cfg = load_scenario(None, [*CLOSED_LOOP_SETTINGS, f"attacker.start_s={FAR_FUTURE_S}",
+                               f"time.duration_s={SCENE_S}", f"signal.seed={seed + 1}", *sets])
+    r, sig = cfg["receiver"], cfg["signal"]
+    key_path = out / "link.key"
+    fd = os.open(key_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w") as f:
+        f.write(secrets.token_hex(32))
+    link_port = _free_port()
+    me = [sys.executable, "-m", "semperfi.cli"]
+    sitl = Sitl(instance, speedup, out / "sitl", binary, params=AUTOPILOT_PARAMS,
+                home=(r["lat_deg"], r["lon_deg"], r["height_m"])).start()
+    procs: list[subprocess.Popen] = []
+    world = obs = None
+    try:
+        obs = Observer(sitl.url(0), speedup=speedup)
+        obs.streams(extra=(mav.MAVLINK_MSG_ID_GPS_RAW_INT,))
+        log(f"autopilot: ArduCopter SITL instance {instance}, x{speedup:g}, home {r['lat_deg']:.5f} {r['lon_deg']:.5f}")
+        companion = subprocess.Popen(me + ["companion", "--port", str(link_port), "--link-key", str(key_path),
+                                           "--vehicle", sitl.url(1),
+                                           *(["--test-seed", str(maneuver_seed)] if maneuver_seed is not None else [])],
+                                     stdout=subprocess.PIPE, stderr=open(out / "companion.err", "w"), text=True)
+        procs.append(companion)
+        if companion.stdout.readline().find('"listening"') < 0:
+            raise RuntimeError("the flight side did not start (companion.err says why)")
+        threading.Thread(target=_drain, args=(companion.stdout, out / "flight.jsonl"), daemon=True).start()
+        receiver = subprocess.Popen(me + ["run", "-", "--fs", repr(sig["fs_hz"]), "--format", sig["format"],
+                                          "--if", repr(sig["if_hz"]), "--out", str(out / "receiver"),
+                                          "--link", f"127.0.0.1:{link_port}", "--link-key", str(key_path),
+                                          "--mavlink-gps", sitl.url(2), "--fix-rate", f"{10.0 * max(speedup, 1.0):g}"],
+                                    stdin=subprocess.PIPE, stdout=open(out / "receiver.out", "w"),
+                                    stderr=open(out / "receiver.err", "w"))
+        procs.append(receiver)
+        world = SitlWorld(cfg, obs, receiver.stdin, out / "truth.csv", speedup, log)
+        world.start()
+        _wait("the autopilot's first GPS fix", lambda: obs.gps_fix_type == GPS_FIX_3D, 300.0 / speedup + 120, world)
+        result.phases["autopilot_fix"] = world.tau_s
+        log(f"{world.tau_s:6.1f} s  the autopilot has SemperFi's 3D fix")
+        threading.Thread(target=lambda: [world.tell() or time.sleep(0.5) for _ in iter(world.is_alive, False)],
+                         daemon=True).start()   # the autopilot's words while it arms and climbs
+        obs.takeoff(ALTITUDE_M)
+        result.phases["airborne"] = world.tau_s
+        log(f"{world.tau_s:6.1f} s  airborne at {ALTITUDE_M:g} m in GUIDED")
+        time.sleep(CRUISE_S / speedup)
+        hover = obs.lat_lon_e7
+        world.attack()
+        _wait("the attack", lambda: world.sim.attack.start_s < FAR_FUTURE_S and world.tau_s > world.sim.attack.start_s,
+              30.0, world, 0.01)
+        result.phases["attack"] = world.sim.attack.start_s
+        log(f"{world.tau_s:6.1f} s  the attacker is on: 1 km east, +6 dB, synchronized, every PRN")
+        _wait("the autopilot to lose its fix (the alarm)", lambda: (obs.gps_fix_type or 0) < GPS_FIX_3D,
+              60.0 / speedup + 30, world, 0.02)
+        result.phases["autopilot_no_fix"] = world.tau_s
+        log(f"{world.tau_s:6.1f} s  the autopilot gets no fix: spoofing is suspected")
+        _wait("the autopilot's fix back (the recovery)", lambda: obs.gps_fix_type == GPS_FIX_3D,
+              240.0 / speedup + 60, world, 0.02)
+        result.phases["autopilot_fix_back"] = world.tau_s
+        log(f"{world.tau_s:6.1f} s  the autopilot has the true position again")
+        time.sleep(3.0 / speedup)   # the flight side hands the vehicle back in GUIDED
+        obs.set_mode(4)
+        obs.conn.mav.set_position_target_global_int_send(0, 1, 1, mav.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+                                                         0b0000_1101_1111_1000, hover[0], hover[1], ALTITUDE_M,
+                                                         0, 0, 0, 0, 0, 0, 0, 0)
+        time.sleep(30.0 / speedup)
+        result.phases["end"] = world.tau_s
+        truth = obs.truth[-1]
+        n, e, _ = pymap3d.geodetic2ned(truth[1], truth[2], 0.0, hover[0] / 1e7, hover[1] / 1e7, 0.0)
+        result.end_error_m = float(math.hypot(n, e))
+        log(f"{world.tau_s:6.1f} s  commanded back to its hover point: it ends {result.end_error_m:.1f} m from it")
+    except (RuntimeError, OSError) as exc:
+        result.errors.append(str(exc))
+    finally:
+        if world is not None:
+            world.stop()
+            world.join(10)
+            if world.error:
+                result.errors.append(world.error)
+        for p in procs:
+            try:
+                p.wait(30)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait(10)
+        if obs is not None:
+            (out / "autopilot.txt").write_text("".join(f"{t if t is None else round(t, 2)} {text}\n"
+                                                       for t, text in obs.texts))
+            obs.close()
+        sitl.stop()
+    if world is not None and world.t_boot0_s is not None:
+        result.gps_errors = judge_gps_input(out, world.sim.t0)
+        result.phases["world_lag_s"] = round(world.lag_s, 2)
+    (out / "summary.json").write_text(json.dumps({"phases": result.phases, "end_error_m": result.end_error_m,
+                                                  "worst_used_gps_error_m": result.worst_used_error_m,
+                                                  "errors": result.errors}, indent=1))
+    return result
+
+
+def judge_gps_input(out: Path, t0: GpsTime) -> list[tuple]:
+    """(t_s, fix_type, horizontal error m, h_acc m) of every GPS_INPUT the receiver sent, against the truth at the
+    time the fix is for (its GPS week and time of week; t_s from the world's first sample)."""
+    path, truth_path = out / "receiver" / "gps_input.csv", out / "truth.csv"
+    if not path.exists() or not truth_path.exists():
+        return []
+    truth = np.array([[float(x[k]) for k in ("t_s", "lat_deg", "lon_deg")] for x in csv.DictReader(open(truth_path))])
+    rows = []
+    for m in csv.DictReader(open(path)):
+        if int(m["time_week"]) == 0:
+            continue   # no fix at all yet
+        t_s = (int(m["time_week"]) - t0.week) * 604800.0 + int(m["time_week_ms"]) / 1e3 - t0.tow_s
+        fix_type = int(m["fix_type"])
+        error = math.nan
+        if fix_type >= GPS_FIX_3D and len(truth) and truth[0, 0] <= t_s <= truth[-1, 0]:
+            lat, lon = (np.interp(t_s, truth[:, 0], truth[:, k]) for k in (1, 2))
+            n, e, _ = pymap3d.geodetic2ned(float(m["lat_deg"]), float(m["lon_deg"]), 0.0, lat, lon, 0.0)
+            error = float(math.hypot(n, e))
+        rows.append((round(t_s, 3), fix_type, error, float(m["h_acc_m"])))
+    return rows
+
+
+def report(result: LoopResult) -> list[str]:
+    """What the loop showed, in a few lines (and the plot beside)."""
+    used = [(t, e) for t, ft, e, _ in result.gps_errors if ft >= GPS_FIX_3D and math.isfinite(e)]
+    withheld = sum(ft < GPS_FIX_3D for _, ft, _, _ in result.gps_errors)
+    lines = [f"GPS_INPUT sent to the autopilot: {len(result.gps_errors)}, {len(used)} with a 3D fix, "
+             f"{withheld} without (no fix while spoofing was suspected)"]
+    if used:
+        errors = np.array([e for _, e in used])
+        lines.append(f"  3D fixes against SITL's truth: median {np.median(errors):.1f} m, worst {errors.max():.1f} m "
+                     f"({int(np.sum(errors > 10.0))} over 10 m)")
+    if math.isfinite(result.end_error_m):
+        lines.append(f"the vehicle ends {result.end_error_m:.1f} m from where it was commanded")
+    try:
+        lines.append(f"plot: {plot(result)}")
+    except (ImportError, OSError, ValueError) as exc:
+        lines.append(f"no plot: {exc}")
+    return lines
+
+
+def plot(result: LoopResult) -> Path:
+    """The attack, the alarm, the maneuver and the recovery on one time axis: each GPS_INPUT's horizontal error
+    against SITL's truth and its fix type; the vehicle's path beside."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = result.out_dir
+    g = np.array([(t, ft, e, h) for t, ft, e, h in result.gps_errors]) if result.gps_errors else np.empty((0, 4))
+    fig, (ax, tx) = plt.subplots(2, 1, figsize=(10, 6.5), sharex=True, gridspec_kw={"height_ratios": [3, 1]})
+    if len(g):
+        used = g[:, 1] >= GPS_FIX_3D
+        ax.plot(g[used, 0], g[used, 2], ".", ms=3, color="tab:green", label="GPS_INPUT 3D fix: error vs SITL truth")
+        ax.plot(g[used, 0], g[used, 3], "-", lw=0.8, color="0.5", label="its stated horizontal accuracy (HPL)")
+        tx.plot(g[:, 0], g[:, 1], drawstyle="steps-post", color="k")
+    ax.axhline(10.0, color="tab:red", ls=":", lw=1, label="10 m")
+    marks = {"attack": ("attacker on", "tab:red"), "autopilot_no_fix": ("alarm: no fix to the autopilot", "tab:orange"),
+             "autopilot_fix_back": ("recovered: true fix again", "tab:green")}
+    for name, (label, color) in marks.items():
+        if name in result.phases:
+            for a in (ax, tx):
+                a.axvline(result.phases[name], color=color, ls="--", lw=1, label=label if a is ax else None)
+    events = [json.loads(x) for x in open(out / "receiver" / "events.jsonl")] \
+        if (out / "receiver" / "events.jsonl").exists() else []
+    follow = [e["t_rx_s"] for e in events if e.get("event") in ("identification_pending", "identification")]
+    if len(follow) >= 2:
+        ax.axvspan(follow[0], follow[-1], color="tab:blue", alpha=0.12, label="maneuver flown and judged")
+    ax.set(ylabel="horizontal error, m", yscale="symlog", title="ArduCopter SITL with SemperFi as its only GPS")
+    ax.legend(fontsize=8, loc="upper left")
+    tx.set(xlabel="s from the world's first sample", ylabel="fix type", yticks=[0, 1, 2, 3])
+    fig.tight_layout()
+    path = out / "autopilot-loop.png"
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
