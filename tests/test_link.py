@@ -1,6 +1,7 @@
 import socket
 import struct
 
+import numpy as np
 import pytest
 
 from semperfi.flight.link import (MAX_FRAME_BYTES, Codec, LinkError, alarm_lines_of_sight, alarm_required_spread_m,
@@ -256,3 +257,37 @@ def test_every_read_has_a_deadline_a_silent_peer_is_gone_a_beating_one_stays(mon
         end.close()
     conn.close()
     srv.close()
+
+
+@pytest.mark.parametrize("vehicle_s, expect_shift_s", [(1002.4, 990.4), (None, 0.0), (float("nan"), 0.0),
+                                                       (1e300, 0.0), ("12", 0.0)])
+def test_the_imu_track_is_moved_from_the_vehicles_clock_to_the_receivers(vehicle_s, expect_shift_s):
+    """On a UAV the autopilot's boot clock and the receiver's sample clock differ (ArduCopter SITL: by its boot time
+    when the receiver started, 2.5 s, which made the maneuver condemn legitimate peaks). The request carries the
+    vehicle's time as sent; read at sample time 12.0 s it maps the track; a missing or hostile value maps nothing."""
+    from semperfi.defense.maneuver_id import LinkedManeuver
+
+    class Flight:
+        closed, rejected = None, 0
+
+        def __init__(self):
+            self.inbox = []
+
+        def send(self, kind, payload):
+            if kind == "alarm":
+                self.inbox.append(("maneuver_request", {"maneuver_id": "m", "t_s": vehicle_s}))
+
+        def poll(self):
+            out, self.inbox = self.inbox, []
+            return out
+
+    flight = Flight()
+    maneuver = LinkedManeuver(flight, 2e6)
+    maneuver.request(12.0, 7)                    # the alarm goes, the request is read at sample time 12.0 s
+    t_vehicle = 1010.0 + np.arange(0.0, 15.0, 0.02)
+    flight.inbox.append(("maneuver_done", {"maneuver_id": "m", "t_s": t_vehicle.tolist(),
+                                           **{k: np.zeros(t_vehicle.size).tolist() for k in ("north_m", "east_m", "down_m")}}))
+    maneuver.pending(13.0)
+    assert maneuver.track is not None
+    assert np.allclose(maneuver.track.t_s, t_vehicle - expect_shift_s)
+    assert maneuver.window_s == pytest.approx((1010.0 - expect_shift_s, t_vehicle[-1] - expect_shift_s))

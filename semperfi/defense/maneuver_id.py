@@ -9,7 +9,8 @@ and are not followed apart: such a PRN stays undecided. When the window ends, th
 with each satellite's line of sight and its own range change over the window (from the ephemeris).
 """
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -22,6 +23,7 @@ from ..receiver.tracking import NEXT_SAMPLE, Channel, LoopConfig, initial_state
 from .identifier import INS_DRIFT_M, REQUIRED_SPREAD_M, ImuTrack, LineOfSight, PeakHistory, PeakVerdict, identify_peaks
 from .imu_track import find_maneuver
 
+MAX_CLOCK_S = 1e9                # a vehicle clock beyond this is not one (hostile input)
 SEPARATE_CHIPS = 1.5          # closer peaks share a tracking loop's discriminator
 FOLLOW_LOOP = LoopConfig(pull_in_ms=300, min_cn0_dbhz=20.0, lost_windows=10)
 HISTORY_EVERY_MS = 20         # one range sample per 20 ms is plenty for a 10-20 s maneuver
@@ -194,8 +196,10 @@ class LinkedManeuver(ManeuverIdentifier):
     it has a fix, so the satellites' lines of sight are known), carrying the lines of sight of the PRNs to decide
     (`sky()`, as the function sky gives them) for the flight side to move along; when the flight side answers
     "maneuver_request" (it has drawn a maneuver and is about to fly it) every candidate peak is followed from the
-    next look on; its "maneuver_done" brings the IMU track (t_s on the receiver's sample clock: the flight side and
-    the receiver share the vehicle's time) and, once the samples have reached the track's end, the peaks are
+    next look on; its "maneuver_done" brings the IMU track (t_s on the vehicle's clock, mapped to the receiver's
+    sample clock by the pair the request made: the vehicle's time as the flight side sent it, the sample time as
+    the receiver read it -- off by the receiver's latency behind the antenna, a fraction of a second live) and,
+    once the samples have reached the track's end, the peaks are
     identified and a "verdict" goes back. No answer within ACCEPT_S, or no track within TRACK_S of signal time: the
     maneuver has failed, the waiting alarms are examined afresh, and the policy's guess applies from then on.
     """
@@ -210,6 +214,7 @@ class LinkedManeuver(ManeuverIdentifier):
         self.requested_s: float | None = None
         self.accepted_s: float | None = None
         self.maneuver_id: str | None = None
+        self.vehicle_minus_sample_s = 0.0   # vehicle clock - sample clock (0: a shared clock, as in a lockstep world)
         self.failed: str | None = None
         self._told: dict[str, object] = {"failed": None, "closed": None, "rejected": 0}
 
@@ -226,10 +231,15 @@ class LinkedManeuver(ManeuverIdentifier):
         for kind, payload in self.channel.poll():
             if kind == "maneuver_request" and self.requested_s is not None and self.accepted_s is None:
                 self.accepted_s, self.maneuver_id = t_s, str(payload.get("maneuver_id", ""))[:64]
+                vehicle_s = payload.get("t_s")
+                if isinstance(vehicle_s, (int, float)) and not isinstance(vehicle_s, bool) and \
+                        math.isfinite(vehicle_s) and abs(vehicle_s) < MAX_CLOCK_S:
+                    self.vehicle_minus_sample_s = float(vehicle_s) - t_s
             elif kind == "maneuver_done" and self.accepted_s is not None and self.track is None:
                 try:
-                    self.track = ImuTrack(*(np.asarray(payload[k], dtype=float)
-                                            for k in ("t_s", "north_m", "east_m", "down_m")))
+                    track = ImuTrack(*(np.asarray(payload[k], dtype=float)
+                                       for k in ("t_s", "north_m", "east_m", "down_m")))
+                    self.track = replace(track, t_s=track.t_s - self.vehicle_minus_sample_s)
                     # the flight side's track is the maneuver, start to stop: all of it is the window (the flight
                     # side drew it to move enough along every line of sight over all of it); find_maneuver, for long
                     # recordings, would cut one at a reversal's slow turn

@@ -40,7 +40,7 @@ from ..gps.time import GpsTime
 from ..iq.formats import as_format, encode_samples
 from ..sim.scenario import load_scenario
 from ..sim.simulate import CHUNK_S, make_live_simulator
-from .autopilot import CRUISE_S, Observer, Sitl
+from .autopilot import CRUISE_S, GUIDED, Observer, Sitl
 from .closed_loop import CLOSED_LOOP_SETTINGS
 
 ALTITUDE_M = 30.0
@@ -51,6 +51,9 @@ SCENE_S = 3600.0                           # the world renders until stopped; th
 TRUTH_EVERY_S = 0.1
 STALL_S = 10.0                             # SITL silent this long (wall) is gone
 GPS_FIX_3D = 3
+ARRIVED_M = 3.0                            # back at the hover point ...
+RETURN_S = 60.0                            # ... within this (vehicle time) ...
+SETTLE_S = 10.0                            # ... and then holding there this long before the end is judged
 
 
 @dataclass
@@ -82,7 +85,7 @@ class SitlWorld(threading.Thread):
         self.lag_s = 0.0
         self.error: str | None = None
         self._attack = threading.Event()
-        self._stop = threading.Event()
+        self._halt = threading.Event()
 
     def tell(self) -> None:
         """Hand on what the autopilot said (STATUSTEXT) since the last call."""
@@ -95,7 +98,7 @@ class SitlWorld(threading.Thread):
         self._attack.set()
 
     def stop(self) -> None:
-        self._stop.set()
+        self._halt.set()
 
     def _truth_at(self, t_boot_s: float):
         """ECEF position and velocity, and (lat, lon, alt), at vehicle time t_boot_s; None until SITL gets there."""
@@ -110,7 +113,7 @@ class SitlWorld(threading.Thread):
 
     def _wait_truth(self, tau_s: float):
         deadline = time.monotonic() + STALL_S
-        while not self._stop.is_set():
+        while not self._halt.is_set():
             state = self._truth_at(self.t_boot0_s + tau_s)
             if state is not None:
                 return state
@@ -133,7 +136,7 @@ class SitlWorld(threading.Thread):
                 pass
 
     def _run(self) -> None:
-        while not self.obs.truth and not self._stop.wait(0.05):
+        while not self.obs.truth and not self._halt.wait(0.05):
             pass
         self.t_boot0_s = self.obs.truth[-1][0]
         state = self._wait_truth(0.0)
@@ -145,7 +148,7 @@ class SitlWorld(threading.Thread):
             truth = csv.writer(f, lineterminator="\n")
             truth.writerow(["t_s", "t_boot_s", "lat_deg", "lon_deg", "height_m"])
             for k, chunk in enumerate(self.sim.chunks()):
-                if self._stop.is_set():
+                if self._halt.is_set():
                     return
                 self.out.write(encode_samples(chunk, self.fmt, 1.0)[0].tobytes())
                 self.tau_s = (k + 1) * CHUNK_S
@@ -161,6 +164,12 @@ class SitlWorld(threading.Thread):
                     truth.writerow([f"{(k + 2) * CHUNK_S:.2f}", f"{self.t_boot0_s + (k + 2) * CHUNK_S:.3f}",
                                     f"{lat:.8f}", f"{lon:.8f}", f"{alt:.3f}"])
                     f.flush()
+
+
+def _distance_m(truth: tuple, lat_lon_e7: tuple[int, int]) -> float:
+    """Horizontal distance of a SIM_STATE record from a commanded latitude/longitude (deg * 1e7)."""
+    n, e, _ = pymap3d.geodetic2ned(truth[1], truth[2], 0.0, lat_lon_e7[0] / 1e7, lat_lon_e7[1] / 1e7, 0.0)
+    return float(math.hypot(n, e))
 
 
 def _free_port() -> int:
@@ -253,17 +262,22 @@ def run_autopilot_loop(out_dir: str | Path, binary: str | Path, speedup: float =
               240.0 / speedup + 60, world, 0.02)
         result.phases["autopilot_fix_back"] = world.tau_s
         log(f"{world.tau_s:6.1f} s  the autopilot has the true position again")
-        time.sleep(3.0 / speedup)   # the flight side hands the vehicle back in GUIDED
-        obs.set_mode(4)
+        flight = out / "flight.jsonl"
+        _wait("the flight side's verdict", lambda: flight.exists() and '"verdict"' in flight.read_text(),
+              120.0 / speedup + 60, world, 0.2)
+        result.phases["verdict"] = world.tau_s
+        log(f"{world.tau_s:6.1f} s  the maneuver is flown and judged; the vehicle is sent back to its hover point")
+        time.sleep(2.0 / speedup)   # the flight side hands the vehicle back in the mode it found it in
+        obs.set_mode(GUIDED)
         obs.conn.mav.set_position_target_global_int_send(0, 1, 1, mav.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
                                                          0b0000_1101_1111_1000, hover[0], hover[1], ALTITUDE_M,
                                                          0, 0, 0, 0, 0, 0, 0, 0)
-        time.sleep(30.0 / speedup)
+        _wait("the vehicle back at its hover point", lambda: _distance_m(obs.truth[-1], hover) < ARRIVED_M,
+              RETURN_S / speedup, world, 0.2)
+        time.sleep(SETTLE_S / speedup)
         result.phases["end"] = world.tau_s
-        truth = obs.truth[-1]
-        n, e, _ = pymap3d.geodetic2ned(truth[1], truth[2], 0.0, hover[0] / 1e7, hover[1] / 1e7, 0.0)
-        result.end_error_m = float(math.hypot(n, e))
-        log(f"{world.tau_s:6.1f} s  commanded back to its hover point: it ends {result.end_error_m:.1f} m from it")
+        result.end_error_m = _distance_m(obs.truth[-1], hover)
+        log(f"{world.tau_s:6.1f} s  it holds {result.end_error_m:.1f} m from where it was commanded")
     except (RuntimeError, OSError) as exc:
         result.errors.append(str(exc))
     finally:
@@ -286,6 +300,7 @@ def run_autopilot_loop(out_dir: str | Path, binary: str | Path, speedup: float =
     if world is not None and world.t_boot0_s is not None:
         result.gps_errors = judge_gps_input(out, world.sim.t0)
         result.phases["world_lag_s"] = round(world.lag_s, 2)
+        result.phases["t_boot0_s"] = world.t_boot0_s
     (out / "summary.json").write_text(json.dumps({"phases": result.phases, "end_error_m": result.end_error_m,
                                                   "worst_used_gps_error_m": result.worst_used_error_m,
                                                   "errors": result.errors}, indent=1))
@@ -333,6 +348,16 @@ def report(result: LoopResult) -> list[str]:
     return lines
 
 
+def _first(path: Path, kind: str) -> dict | None:
+    """The first JSON line of `kind` in a report file."""
+    if not path.exists():
+        return None
+    for line in open(path):
+        if line.startswith("{") and f'"{kind}"' in line:
+            return json.loads(line)
+    return None
+
+
 def plot(result: LoopResult) -> Path:
     """The attack, the alarm, the maneuver and the recovery on one time axis: each GPS_INPUT's horizontal error
     against SITL's truth and its fix type; the vehicle's path beside."""
@@ -355,11 +380,10 @@ def plot(result: LoopResult) -> Path:
         if name in result.phases:
             for a in (ax, tx):
                 a.axvline(result.phases[name], color=color, ls="--", lw=1, label=label if a is ax else None)
-    events = [json.loads(x) for x in open(out / "receiver" / "events.jsonl")] \
-        if (out / "receiver" / "events.jsonl").exists() else []
-    follow = [e["t_rx_s"] for e in events if e.get("event") in ("identification_pending", "identification")]
-    if len(follow) >= 2:
-        ax.axvspan(follow[0], follow[-1], color="tab:blue", alpha=0.12, label="maneuver flown and judged")
+    done = _first(out / "flight.jsonl", "maneuver_done")
+    if done and "t_boot0_s" in result.phases:   # the flight side times it in vehicle boot seconds
+        t0 = result.phases["t_boot0_s"]
+        ax.axvspan(done["start_s"] - t0, done["end_s"] - t0, color="tab:blue", alpha=0.12, label="maneuver flown")
     ax.set(ylabel="horizontal error, m", yscale="symlog", title="ArduCopter SITL with SemperFi as its only GPS")
     ax.legend(fontsize=8, loc="upper left")
     tx.set(xlabel="s from the world's first sample", ylabel="fix type", yticks=[0, 1, 2, 3])

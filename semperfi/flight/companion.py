@@ -59,7 +59,7 @@ def serve(port: int, key: bytes, vehicle_url: str, report, host: str = "127.0.0.
                                 altitude_m=status.height_above_home_m,
                                 lines_of_sight=lines_of_sight, required_spread_m=required_m, rng=rng)
                 maneuver_id = secrets.token_hex(8)
-                peer.send("maneuver_request", {"maneuver_id": maneuver_id})
+                peer.send("maneuver_request", {"maneuver_id": maneuver_id, "t_s": pilot.tm.attitude_t_s})
                 report({"event": "maneuver_drawn", "maneuver_id": maneuver_id, "legs": len(maneuver.legs),
                         "duration_s": round(maneuver.duration_s, 2), "path_m": round(maneuver.path_length_m, 1),
                         "end_distance_m": round(maneuver.end_distance_m, 1),

@@ -13,7 +13,10 @@ Types, in the order of one identification round:
                                              "az_deg": float, "el_deg": float}, ...]}   (the PRNs whose peaks the
                                              maneuver is to decide, seen from the receiver's last fix; at most 32,
                                              absent from older peers: alarm_lines_of_sight checks them)
-    "maneuver_request"  flight -> receiver  {"maneuver_id": str}      (flight has drawn the maneuver itself)
+    "maneuver_request"  flight -> receiver  {"maneuver_id": str, "t_s": float}   (flight has drawn the maneuver
+                                             itself; t_s: the vehicle's clock as it sends, which the receiver pairs
+                                             with its own sample clock as it reads it -- the two clocks are not
+                                             the same on a UAV -- to map the track's times; absent: shared clock)
     "maneuver_done"     flight -> receiver  {"maneuver_id": str, "t_s": [...], "north_m": [...],
                                              "east_m": [...], "down_m": [...]}   (the IMU track)
     "verdict"           receiver -> flight  {"maneuver_id": str, "adversarial": bool, "peaks": [...]}
