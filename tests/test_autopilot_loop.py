@@ -26,8 +26,10 @@ class ScriptedAutopilot:
     flying east at EAST_M_S from HOME, its clock starting at 7.5 s (its boot was before the world started)."""
 
     def __init__(self, boot_s: float = 7.5, hz: float = 50.0):
+        """Its clock stops at `until_s` (the world waits for it there) until that is moved on."""
         self.truth, self.texts = [], []
         self._stop = threading.Event()
+        self.until_s = boot_s + 0.05
         self._t = boot_s
         self._dt = 1.0 / hz
         self._thread = threading.Thread(target=self._run, daemon=True)
@@ -39,6 +41,9 @@ class ScriptedAutopilot:
 
     def _run(self):
         while not self._stop.is_set():
+            if self._t > self.until_s:
+                time.sleep(0.002)
+                continue
             self.truth.append(self.state(self._t))
             self._t += self._dt
             time.sleep(0.001)   # far faster than real time: the world keeps its pace
@@ -72,14 +77,19 @@ def test_the_world_renders_on_the_autopilots_clock_from_its_truth_and_switches_t
     autopilot = ScriptedAutopilot()
     world = SitlWorld(cfg, autopilot, Sink(n_chunks * chunk_bytes), tmp_path / "truth.csv", 1.0, log=lambda _: None)
     world.start()
-    while world.tau_s < 1.0 and world.is_alive():
+    while world.t_boot0_s is None:
         time.sleep(0.01)
+    autopilot.until_s = world.t_boot0_s + 1.0
+    while world.tau_s < 1.0 - 2 * CHUNK_S and world.is_alive():   # it waits there for the autopilot's clock
+        time.sleep(0.01)
+    asked_at_s = world.tau_s
     world.attack()
+    autopilot.until_s = math.inf
     world.join(60)
     autopilot.close()
     assert world.error is None and not world.is_alive()
     assert world.out.n == n_chunks * chunk_bytes            # every chunk written, then the receiver "went"
-    assert 1.0 <= world.sim.attack.start_s <= 1.0 + 3 * CHUNK_S   # on at the next chunk once asked
+    assert asked_at_s < world.sim.attack.start_s <= asked_at_s + 2 * CHUNK_S + 1e-9   # on at the next chunk
     rows = list(csv.DictReader(open(tmp_path / "truth.csv")))
     assert len(rows) >= 15
     for r in rows:   # the signal time t_s is the autopilot's boot time less its boot time when the world began

@@ -291,3 +291,51 @@ def test_the_imu_track_is_moved_from_the_vehicles_clock_to_the_receivers(vehicle
     assert maneuver.track is not None
     assert np.allclose(maneuver.track.t_s, t_vehicle - expect_shift_s)
     assert maneuver.window_s == pytest.approx((1010.0 - expect_shift_s, t_vehicle[-1] - expect_shift_s))
+
+
+@pytest.mark.parametrize("bound, tolerance_m", [(4.3, 4.8), (1.0, 2.5), (None, 2.5), (float("nan"), 2.5),
+                                                 (-3.0, 2.5), (1e9, 2.5)])
+def test_the_identifiers_tolerance_grows_with_the_flight_sides_drift_bound(bound, tolerance_m, monkeypatch):
+    """Issue 24, item 2: the INS track's error bound grows with time (deadreckoning.ins_error_bound_m: 4.3 m after
+    20 s) and is what the identifier's threshold uses, never below its own 2 m; a missing or hostile one is ignored."""
+    import semperfi.defense.maneuver_id as mid
+
+    class Flight:
+        closed, rejected = None, 0
+
+        def __init__(self):
+            self.inbox = []
+
+        def send(self, kind, payload):
+            if kind == "alarm":
+                self.inbox.append(("maneuver_request", {"maneuver_id": "m"}))
+
+        def poll(self):
+            out, self.inbox = self.inbox, []
+            return out
+
+    flight = Flight()
+    maneuver = mid.LinkedManeuver(flight, 2e6)
+    maneuver.request(12.0, 7)
+    t = np.arange(13.0, 28.0, 0.02)
+    flight.inbox.append(("maneuver_done", {"maneuver_id": "m", "t_s": t.tolist(), "drift_bound_m": bound,
+                                           **{k: np.zeros(t.size).tolist() for k in ("north_m", "east_m", "down_m")}}))
+    maneuver.pending(12.5)
+    seen = {}
+    monkeypatch.setattr(mid, "identify_peaks", lambda *a, range_tol_m, **k: seen.setdefault("tol", range_tol_m) and [])
+    monkeypatch.setattr(mid, "lines_of_sight", lambda prns, *a: {p: None for p in prns})
+
+    class History:
+        def __init__(self, prn):
+            self.prn, self.t_s = prn, t
+
+    class Follower:
+        def __init__(self, prn):
+            self.h = History(prn)
+
+        def history(self):
+            return self.h
+
+    maneuver.followers = {(p, 0): Follower(p) for p in (3, 5, 7)}
+    maneuver.identify(object(), lambda prn: None)
+    assert seen["tol"] == pytest.approx(tolerance_m)

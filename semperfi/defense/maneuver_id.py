@@ -31,7 +31,8 @@ SETTLE_S = 0.5                # the window's first half second: the followers' l
 FLIGHT_TIME_S = 0.075         # signal flight time, for the satellites' transmit instants (its changes are negligible)
 # carrier ranges are good to millimetres: what remains is the INS drift over the maneuver -- a code-range tolerance
 # (4.5 m) would let a spoofed peak with a small signature pass
-CARRIER_RANGE_TOL_M = INS_DRIFT_M + 0.5
+CARRIER_RANGE_TOL_M = INS_DRIFT_M + 0.5   # the tolerance less the drift: the carrier ranges' own error
+MAX_DRIFT_BOUND_M = 20.0      # a flight side's drift bound beyond this is no INS track worth a verdict (hostile input)
 
 
 class PeakFollower:
@@ -126,6 +127,7 @@ class ManeuverIdentifier:
         """track None: it comes later (LinkedManeuver, from the flight side)."""
         self.track, self.fs_hz, self.if_hz = track, fs_hz, if_hz
         self.window_s = find_maneuver(track) if track is not None else None
+        self.drift_bound_m = INS_DRIFT_M   # how far the INS track may be from the flight at the window's end
         self.followers: dict[tuple[int, int], PeakFollower] = {}
         self._buf = np.empty(0, dtype=np.complex64)
         self._base = 0
@@ -184,7 +186,8 @@ class ManeuverIdentifier:
         t = np.linspace(min([h.t_s[0] for h in span] + [t0]), max([h.t_s[-1] for h in span] + [t1]), 201)
         los = lines_of_sight(sorted({h.prn for h in span}), ephemeris_of, fix, t) if fix is not None else {}
         usable = [h for h in span if h.prn in los]
-        verdicts = identify_peaks(usable, los, self.track, range_tol_m=CARRIER_RANGE_TOL_M) if len(usable) >= 3 else []
+        tol_m = CARRIER_RANGE_TOL_M - INS_DRIFT_M + max(INS_DRIFT_M, self.drift_bound_m)
+        verdicts = identify_peaks(usable, los, self.track, range_tol_m=tol_m) if len(usable) >= 3 else []
         return Identification(tuple(verdicts), self.followers)
 
 
@@ -244,6 +247,10 @@ class LinkedManeuver(ManeuverIdentifier):
                     # side drew it to move enough along every line of sight over all of it); find_maneuver, for long
                     # recordings, would cut one at a reversal's slow turn
                     self.window_s = (float(self.track.t_s[0]), float(self.track.t_s[-1]))
+                    bound = payload.get("drift_bound_m")   # the flight side's INS error bound over its track
+                    if isinstance(bound, (int, float)) and not isinstance(bound, bool) and \
+                            0.0 < bound <= MAX_DRIFT_BOUND_M:
+                        self.drift_bound_m = float(bound)
                 except (KeyError, TypeError, ValueError) as exc:
                     self.failed = f"unusable IMU track ({exc})"[:200]
         if self.failed is None and self.requested_s is not None:

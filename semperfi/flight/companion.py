@@ -16,6 +16,7 @@ import time
 
 import numpy as np
 
+from .deadreckoning import ins_error_bound_m
 from .link import LinkError, LinkPeer, alarm_lines_of_sight, alarm_required_spread_m
 from .maneuver import ManeuverLimits, draw, spread_m, unit_ned
 from .mavlink_pilot import Pilot, PilotError
@@ -75,7 +76,8 @@ def serve(port: int, key: bytes, vehicle_url: str, report, host: str = "127.0.0.
             track = {"maneuver_id": maneuver_id, "t_s": [round(t0 + t, 3) for t in ins.t_s.tolist()],
                      "north_m": [round(x, 3) for x in ins.pos_ned_m[:, 0].tolist()],
                      "east_m": [round(x, 3) for x in ins.pos_ned_m[:, 1].tolist()],
-                     "down_m": [round(x, 3) for x in ins.pos_ned_m[:, 2].tolist()]}
+                     "down_m": [round(x, 3) for x in ins.pos_ned_m[:, 2].tolist()],
+                     "drift_bound_m": round(float(ins_error_bound_m(ins.t_s[-1] - ins.t_s[0])), 2)}
             peer.send("maneuver_done", track)
             report({"event": "maneuver_done", "start_s": round(t0, 2), "end_s": track["t_s"][-1], "track": track})
             flown += 1

@@ -97,8 +97,9 @@ FLOOR_M = 0.3                          # sample timing: 20 ms at 4 m/s, and the 
 
 def ins_error_bound_m(t_s):
     """How far a hover-calibrated strapdown track may be from the truth t_s after its start: a start velocity error
-    (t), the accelerometer's residual (t^2 / 2) and the gyro's, tilting gravity (g t^3 / 6). The identifier's
-    threshold takes this: 2.4 m after 15 s, 4.3 m after 20 s."""
+    (t), the accelerometer's residual (t^2 / 2) and the gyro's, tilting gravity (g t^3 / 6): 2.4 m after 15 s, 4.3 m
+    after 20 s. The flight side sends it with its track; the identifier's range tolerance grows with it (never under
+    its own INS_DRIFT_M, 2 m)."""
     t = np.asarray(t_s, float)
     return (FLOOR_M + START_VELOCITY_ERROR_MPS * t + ACCEL_RESIDUAL_MPS2 * t ** 2 / 2
             + GRAVITY_NED_MPS2[2] * GYRO_RESIDUAL_RPS * t ** 3 / 6)

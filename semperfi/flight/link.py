@@ -18,7 +18,9 @@ Types, in the order of one identification round:
                                              with its own sample clock as it reads it -- the two clocks are not
                                              the same on a UAV -- to map the track's times; absent: shared clock)
     "maneuver_done"     flight -> receiver  {"maneuver_id": str, "t_s": [...], "north_m": [...],
-                                             "east_m": [...], "down_m": [...]}   (the IMU track)
+                                             "east_m": [...], "down_m": [...], "drift_bound_m": float}
+                                             (the IMU track, and how far from the flight it may end: the
+                                             identifier's tolerance grows with it; absent: its own 2 m)
     "verdict"           receiver -> flight  {"maneuver_id": str, "adversarial": bool, "peaks": [...]}
     "heartbeat"         both ways           {}   (every HEARTBEAT_S: a peer silent for SILENT_S is gone)
 
