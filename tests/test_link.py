@@ -259,6 +259,22 @@ def test_every_read_has_a_deadline_a_silent_peer_is_gone_a_beating_one_stays(mon
     srv.close()
 
 
+class _Flight:
+    """A flight side that answers the alarm with `request` and hands on whatever the test puts in its inbox."""
+    closed, rejected = None, 0
+
+    def __init__(self, request: dict):
+        self.request, self.inbox = request, []
+
+    def send(self, kind, payload):
+        if kind == "alarm":
+            self.inbox.append(("maneuver_request", self.request))
+
+    def poll(self):
+        out, self.inbox = self.inbox, []
+        return out
+
+
 @pytest.mark.parametrize("vehicle_s, expect_shift_s", [(1002.4, 990.4), (None, 0.0), (float("nan"), 0.0),
                                                        (1e300, 0.0), ("12", 0.0)])
 def test_the_imu_track_is_moved_from_the_vehicles_clock_to_the_receivers(vehicle_s, expect_shift_s):
@@ -267,21 +283,7 @@ def test_the_imu_track_is_moved_from_the_vehicles_clock_to_the_receivers(vehicle
     vehicle's time as sent; read at sample time 12.0 s it maps the track; a missing or hostile value maps nothing."""
     from semperfi.defense.maneuver_id import LinkedManeuver
 
-    class Flight:
-        closed, rejected = None, 0
-
-        def __init__(self):
-            self.inbox = []
-
-        def send(self, kind, payload):
-            if kind == "alarm":
-                self.inbox.append(("maneuver_request", {"maneuver_id": "m", "t_s": vehicle_s}))
-
-        def poll(self):
-            out, self.inbox = self.inbox, []
-            return out
-
-    flight = Flight()
+    flight = _Flight({"maneuver_id": "m", "t_s": vehicle_s})
     maneuver = LinkedManeuver(flight, 2e6)
     maneuver.request(12.0, 7)                    # the alarm goes, the request is read at sample time 12.0 s
     t_vehicle = 1010.0 + np.arange(0.0, 15.0, 0.02)
@@ -300,21 +302,7 @@ def test_the_identifiers_tolerance_grows_with_the_flight_sides_drift_bound(bound
     20 s) and is what the identifier's threshold uses, never below its own 2 m; a missing or hostile one is ignored."""
     import semperfi.defense.maneuver_id as mid
 
-    class Flight:
-        closed, rejected = None, 0
-
-        def __init__(self):
-            self.inbox = []
-
-        def send(self, kind, payload):
-            if kind == "alarm":
-                self.inbox.append(("maneuver_request", {"maneuver_id": "m"}))
-
-        def poll(self):
-            out, self.inbox = self.inbox, []
-            return out
-
-    flight = Flight()
+    flight = _Flight({"maneuver_id": "m"})
     maneuver = mid.LinkedManeuver(flight, 2e6)
     maneuver.request(12.0, 7)
     t = np.arange(13.0, 28.0, 0.02)
