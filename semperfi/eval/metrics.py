@@ -13,16 +13,16 @@ import csv
 import json
 import math
 from dataclasses import dataclass
-from datetime import datetime
+from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 import pymap3d
 
+from ..gps.time import GPS_EPOCH
 from ..receiver.types import TRUSTED_STATES
 
 SECONDS_PER_WEEK = 604800
-GPS_EPOCH = datetime(1980, 1, 6)
 DEFENDED_STATES = ("recovered", "rectified")
 EPOCH_HZ = 10.0          # the availability grid: the receiver's fix rate
 BAD_M = 10.0             # a fix farther than this (horizontal) from the truth is wrong
@@ -42,7 +42,7 @@ class Truth:
 
 def gps_time(date: str) -> tuple[int, float]:
     """gps-sdr-sim's -t time ("YYYY/MM/DD,hh:mm:ss", GPS time, no leap seconds) as (GPS week, seconds of week)."""
-    s = (datetime.strptime(date, "%Y/%m/%d,%H:%M:%S") - GPS_EPOCH).total_seconds()
+    s = (datetime.strptime(date, "%Y/%m/%d,%H:%M:%S").replace(tzinfo=timezone.utc) - GPS_EPOCH).total_seconds()
     return int(s // SECONDS_PER_WEEK), float(s % SECONDS_PER_WEEK)
 
 

@@ -15,9 +15,9 @@ from pathlib import Path
 from typing import Iterable, TextIO
 
 from .. import __version__
+from ..gps.time import GPS_EPOCH
 
 OBS_TYPES = ("C1C", "L1C", "D1C", "S1C")
-GPS_EPOCH = _dt.datetime(1980, 1, 6)
 
 
 @dataclass(frozen=True)
