@@ -220,3 +220,29 @@ def test_a_vehicle_that_ignores_the_setpoints_aborts_the_maneuver(vehicle):
         pilot.close()
     assert "back in mode" in str(aborted.value) and v.mode == MODES["LOITER"]
     assert np.hypot(*v.vehicle.pos_ned_m[:2]) < 2.0
+
+
+def test_a_hover_stirred_up_is_settled_and_tried_again_not_the_maneuver_aborted(vehicle, monkeypatch):
+    """On ArduCopter SITL the hover before a maneuver was stirred up by the EKF correcting itself as the true GPS
+    came back (2 m/s), and the maneuver was aborted. The hover is tried again (HOVER_TRIES), the maneuver flown."""
+    from semperfi.flight import mavlink_pilot
+    v, port = vehicle
+    hovers = []
+    real_hover = mavlink_pilot.Pilot._hover
+
+    def stirred_once(self, yaw_rad):
+        hovers.append(yaw_rad)
+        if len(hovers) == 1:
+            raise mavlink_pilot.Restless("vehicle does not hold still in GUIDED (2.0 m/s with zero velocity asked)")
+        return real_hover(self, yaw_rad)
+
+    monkeypatch.setattr(mavlink_pilot.Pilot, "_hover", stirred_once)
+    pilot = Pilot(f"udpout:127.0.0.1:{port}", timeout_s=10)
+    try:
+        status = pilot.prepare()
+        maneuver = draw(ManeuverLimits(), altitude_m=status.height_above_home_m, rng=random.Random(7))
+        flown = pilot.fly(maneuver)
+    finally:
+        pilot.close()
+    assert len(hovers) == 3                      # the stirred one, its retry, and the one after the maneuver
+    assert flown.ins.t_s[-1] >= maneuver.duration_s

@@ -20,6 +20,7 @@ at 10 m/s), where with the failsafe on it lands ~9 s into the outage: the safe e
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import math
@@ -46,7 +47,11 @@ from .autopilot import CRUISE_S, GUIDED, Observer, Sitl
 from .closed_loop import CLOSED_LOOP_SETTINGS
 
 ALTITUDE_M = 30.0
-AUTOPILOT_PARAMS = {"GPS1_TYPE": 14}      # its GPS is GPS_INPUT, ours
+AUTOPILOT_PARAMS = {"GPS1_TYPE": 14,      # its GPS is GPS_INPUT, ours
+                    # the fix reaches it a few tenths of a second after its epoch (the receiver computes a chunk of
+                    # samples at a time, the stream hands the fixes on one a period): ArduPilot's most; at its default
+                    # 10 m/s return the EKF took the lag for a glitch (measured: a 40 m overshoot, then LAND)
+                    "GPS1_DELAY_MS": 250, "WPNAV_SPEED": 300}
 FAR_FUTURE_S = 86400.0                     # the attacker waits until the world switches it on
 SCENE_S = 3600.0                           # the world renders until stopped; this only bounds it
 TRUTH_EVERY_S = 0.1
@@ -196,10 +201,17 @@ def _drain(stream, path: Path) -> None:
             f.flush()
 
 
+def _narrate(world: SitlWorld) -> None:
+    """Hand on what the autopilot says, as long as the world runs."""
+    while world.is_alive():
+        world.tell()
+        time.sleep(0.2)
+    world.tell()
+
+
 def _wait(what: str, done, timeout_s: float, world: SitlWorld, poll_s: float = 0.1) -> None:
     deadline = time.monotonic() + timeout_s
     while not done():
-        world.tell()
         if world.error or not world.is_alive():
             raise RuntimeError(world.error or "the world stopped")
         if time.monotonic() > deadline:
@@ -208,10 +220,9 @@ def _wait(what: str, done, timeout_s: float, world: SitlWorld, poll_s: float = 0
 
 
 def run_autopilot_loop(out_dir: str | Path, binary: str | Path, speedup: float = 1.0, instance: int = 6,
-                       sets: list[str] = (), seed: int = 0, maneuver_seed: int | None = None,
-                       log=lambda line: None) -> LoopResult:
-    """The whole loop; log(line) hears each phase as it happens. maneuver_seed (tests only) makes the maneuver
-    repeatable; otherwise it is the OS's cryptographic draw."""
+                       sets: list[str] = (), seed: int = 0, log=lambda line: None) -> LoopResult:
+    """The whole loop; log(line) hears each phase as it happens (seed: the signals' noise; the maneuver is the OS's
+    cryptographic draw, as in flight)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     result = LoopResult(out)
@@ -228,14 +239,15 @@ def run_autopilot_loop(out_dir: str | Path, binary: str | Path, speedup: float =
                 home=(r["lat_deg"], r["lon_deg"], r["height_m"])).start()
     procs: list[subprocess.Popen] = []
     world = obs = None
+    logs = contextlib.ExitStack()   # the children's output files, closed at the end
     try:
         obs = Observer(sitl.url(0), speedup=speedup)
         obs.streams(extra=(mav.MAVLINK_MSG_ID_GPS_RAW_INT,))
         log(f"autopilot: ArduCopter SITL instance {instance}, x{speedup:g}, home {r['lat_deg']:.5f} {r['lon_deg']:.5f}")
         companion = subprocess.Popen(me + ["companion", "--port", str(link_port), "--link-key", str(key_path),
-                                           "--vehicle", sitl.url(1),
-                                           *(["--test-seed", str(maneuver_seed)] if maneuver_seed is not None else [])],
-                                     stdout=subprocess.PIPE, stderr=open(out / "companion.err", "w"), text=True)
+                                           "--vehicle", sitl.url(1)],
+                                     stdout=subprocess.PIPE, stderr=logs.enter_context(open(out / "companion.err", "w")),
+                                     text=True)
         procs.append(companion)
         if companion.stdout.readline().find('"listening"') < 0:
             raise RuntimeError("the flight side did not start (companion.err says why)")
@@ -244,16 +256,15 @@ def run_autopilot_loop(out_dir: str | Path, binary: str | Path, speedup: float =
                                           "--if", repr(sig["if_hz"]), "--out", str(out / "receiver"),
                                           "--link", f"127.0.0.1:{link_port}", "--link-key", str(key_path),
                                           "--mavlink-gps", sitl.url(2), "--fix-rate", f"{10.0 * max(speedup, 1.0):g}"],
-                                    stdin=subprocess.PIPE, stdout=open(out / "receiver.out", "w"),
-                                    stderr=open(out / "receiver.err", "w"))
+                                    stdin=subprocess.PIPE, stdout=logs.enter_context(open(out / "receiver.out", "w")),
+                                    stderr=logs.enter_context(open(out / "receiver.err", "w")))
         procs.append(receiver)
         world = SitlWorld(cfg, obs, receiver.stdin, out / "truth.csv", speedup, log)
         world.start()
+        threading.Thread(target=_narrate, args=(world,), daemon=True).start()
         _wait("the autopilot's first GPS fix", lambda: obs.gps_fix_type == GPS_FIX_3D, 300.0 / speedup + 120, world)
         result.phases["autopilot_fix"] = world.tau_s
         log(f"{world.tau_s:6.1f} s  the autopilot has SemperFi's 3D fix")
-        threading.Thread(target=lambda: [world.tell() or time.sleep(0.5) for _ in iter(world.is_alive, False)],
-                         daemon=True).start()   # the autopilot's words while it arms and climbs
         obs.takeoff(ALTITUDE_M)
         result.phases["airborne"] = world.tau_s
         log(f"{world.tau_s:6.1f} s  airborne at {ALTITUDE_M:g} m in GUIDED")
@@ -273,10 +284,13 @@ def run_autopilot_loop(out_dir: str | Path, binary: str | Path, speedup: float =
         result.phases["autopilot_fix_back"] = world.tau_s
         log(f"{world.tau_s:6.1f} s  the autopilot has the true position again")
         flight = out / "flight.jsonl"
-        _wait("the flight side's verdict", lambda: flight.exists() and '"verdict"' in flight.read_text(),
+        _wait("the flight side's verdict", lambda: flight.exists() and ('"verdict"' in flight.read_text() or
+                                                                     '"maneuver_failed"' in flight.read_text()),
               120.0 / speedup + 60, world, 0.2)
         result.phases["verdict"] = world.tau_s
-        log(f"{world.tau_s:6.1f} s  the maneuver is flown and judged; the vehicle is sent back to its hover point")
+        failed = _first(flight, "maneuver_failed")
+        log(f"{world.tau_s:6.1f} s  the maneuver is " + (f"aborted: {failed['error']}" if failed else "flown and judged")
+            + "; the vehicle is sent back to its hover point")
         time.sleep(2.0 / speedup)   # the flight side hands the vehicle back in the mode it found it in
         obs.set_mode(GUIDED)
         obs.conn.mav.set_position_target_global_int_send(0, 1, 1, mav.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
@@ -302,6 +316,7 @@ def run_autopilot_loop(out_dir: str | Path, binary: str | Path, speedup: float =
             except subprocess.TimeoutExpired:
                 p.kill()
                 p.wait(10)
+        logs.close()
         if obs is not None:
             (out / "autopilot.txt").write_text("".join(f"{t if t is None else round(t, 2)} {text}\n"
                                                        for t, text in obs.texts))

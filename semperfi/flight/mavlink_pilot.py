@@ -38,6 +38,8 @@ STILL_MPS = 0.5                           # the hover starts once the vehicle ha
 STILL_S = 0.5
 STOPPED_MPS = 0.2
 SETTLE_MAX_S = 6.0
+HOVER_TRIES = 3                           # a hover stirred up (a gust; the EKF correcting itself as GPS comes back:
+                                          # measured on ArduCopter SITL) is settled and tried again this often
 COMMAND_RETRY_S = 1.0                     # a command without an ACK after this is sent again
 OBEY_TOLERANCE_MPS = 1.5                  # reported velocity this far from the plan's ...
 OBEY_GRACE_S = 2.0                        # ... for this long (vehicle time) is disobedience
@@ -46,6 +48,10 @@ HEIGHT_MARGIN_M = 2.0                     # below the limits' minimum height by 
 
 class PilotError(RuntimeError):
     """The vehicle did not answer, refused, is not fit to maneuver, or sent nonsense."""
+
+
+class Restless(PilotError):
+    """The vehicle moved in a hover that was to hold it still."""
 
 
 class ManeuverAborted(PilotError):
@@ -263,7 +269,7 @@ class Pilot:
         self._imu, self._att, self._pos = [], [], []
         self._recording = True
         try:
-            before, before_t = self._hover(yaw)
+            before, before_t = self._hover_until_still(yaw)
             start = self._imu[-1][0]
             c0, v0 = c_nb(*self.tm.attitude_rpy_rad), self.tm.vel_ned_mps.copy()
             p0 = self.tm.pos_ned_m.copy()
@@ -287,6 +293,15 @@ class Pilot:
                         vel0_ned_mps=v0, bias=bias)
         pos = [(pt - start, ned) for pt, ned, _ in self._pos if start <= pt <= imu[-1][0]]
         return FlownManeuver(ins, start, np.array([p for _, p in pos]) - p0, np.array([pt for pt, _ in pos]), bias)
+
+    def _hover_until_still(self, yaw_rad: float) -> tuple[HoverBias, float]:
+        """The hover before the maneuver, tried HOVER_TRIES times if the vehicle would not keep still."""
+        for _ in range(HOVER_TRIES - 1):
+            try:
+                return self._hover(yaw_rad)
+            except Restless:
+                pass   # _hover settles it again first
+        return self._hover(yaw_rad)
 
     def _hover(self, yaw_rad: float) -> tuple[HoverBias, float]:
         """Zero velocity with the heading held for HOVER_S; the IMU's biases it measured, and its mid-time."""
@@ -363,7 +378,7 @@ class Pilot:
         self._fit()
         speed = float(np.linalg.norm(self.tm.vel_ned_mps))
         if speed > HOVER_MAX_SPEED_MPS and self._imu[-1][0] - self._hover_t0 > 1.5:
-            raise PilotError(f"vehicle does not hold still in GUIDED ({speed:.1f} m/s with zero velocity asked)")
+            raise Restless(f"vehicle does not hold still in GUIDED ({speed:.1f} m/s with zero velocity asked)")
 
     def _maneuvering(self, t_man: float | None, plan: _PlannedVelocity, p0: np.ndarray) -> None:
         self._fit()
