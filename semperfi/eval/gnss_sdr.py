@@ -77,13 +77,13 @@ def _fmt_float(value: float) -> str:
 def gnss_sdr_config(data_file: str | os.PathLike, fs_hz: float, item_type: str, if_hz: float = 0.0,
                     channels: int = 12, out_dir: str | os.PathLike = ".", trop_model: str = "Saastamoinen",
                     iono_model: str = "Broadcast", output_rate_ms: int = 100, doppler_max_hz: int = 10000,
-                    elevation_mask_deg: float = 5.0) -> str:
+                    elevation_mask_deg: float = 5.0, rinex: bool = False) -> str:
     """A complete GNSS-SDR 0.0.17 configuration for GPS L1 C/A from `data_file`.
 
     `item_type` is GNSS-SDR's name of the sample format ('ishort' = interleaved int16 I/Q, 'ibyte' = int8 I/Q,
     'gr_complex' = complex64). `if_hz` is where L1 sits in the complex band (the signal is multiplied by
     exp(-j 2 pi if_hz t) before acquisition); 0 uses a pass-through filter. NMEA, GPX, KML and GeoJSON go to
-    `out_dir`; RINEX, XML ephemeris dumps and RTCM are off.
+    `out_dir`; RINEX 3 observations and navigation too when `rinex`; XML ephemeris dumps and RTCM are off.
     """
     if item_type not in ITEM_TYPES:
         raise ValueError(f"item_type must be one of {', '.join(ITEM_TYPES)}, got {item_type!r}")
@@ -205,7 +205,9 @@ def gnss_sdr_config(data_file: str | os.PathLike, fs_hz: float, item_type: str, 
         "PVT.display_rate_ms=1000",
         "PVT.output_enabled=true",
         f"PVT.output_path={out}",
-        "PVT.rinex_output_enabled=false",
+        f"PVT.rinex_output_enabled={'true' if rinex else 'false'}",
+        "PVT.rinex_version=3",
+        f"PVT.rinex_output_path={out}",
         "PVT.xml_output_enabled=false",
         "PVT.rtcm_output_file_enabled=false",
         "PVT.an_output_enabled=false",

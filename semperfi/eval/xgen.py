@@ -373,26 +373,32 @@ def score(fixes_csv: Path, place: Place, last_s: float = 10.0, bad_m: float = 10
     return out
 
 
-def prepare(case: Case, nav_path: str | Path, work: Path) -> Path:
-    """The mixed recording of a case (scenes cached in work/scenes, named by what renders them: place or motion,
-    start time, path loss, rate and length)."""
-    scenes = work / "scenes"
-    scenes.mkdir(parents=True, exist_ok=True)
+def scenes(case: Case, nav_path: str | Path, work: Path) -> tuple[Path, Path | None]:
+    """The legitimate scene of a case and its spoofer's (None: no attacker, or a time push, which the mixer makes
+    from the legitimate scene), rendered once and cached in work/scenes, named by what renders them: place or
+    motion, start time, path loss, rate and length."""
+    cache = work / "scenes"
+    cache.mkdir(parents=True, exist_ok=True)
     stem = f"{case.date.replace('/', '').replace(',', 'T').replace(':', '')}-{case.fs_hz / 1e6:g}M-{case.duration_s:g}s"
     stem += "-pl" if case.path_loss else ""
     trip = f"-{Path(case.motion).stem}" if case.motion else ""
-    legit = render(nav_path, scenes / f"{case.place.name}{trip}-{stem}.bin", case.place, case, case.motion)
+    legit = render(nav_path, cache / f"{case.place.name}{trip}-{stem}.bin", case.place, case, case.motion)
     spoof = None
     if case.attacker and case.push_ns_per_s:
         pass                          # the legitimate scene itself, delayed in the mixer
     elif case.attacker and case.spoof_motion:
-        spoof = render(nav_path, scenes / f"{case.place.name}-{Path(case.spoof_motion).stem}-{stem}.bin", case.place,
+        spoof = render(nav_path, cache / f"{case.place.name}-{Path(case.spoof_motion).stem}-{stem}.bin", case.place,
                        case, case.spoof_motion)
     elif case.attacker:
         claimed = claimed_place(case)
-        spoof = render(nav_path, scenes / f"{case.place.name}-{case.offset_m:g}m-{case.azimuth_deg:g}deg-{stem}.bin",
+        spoof = render(nav_path, cache / f"{case.place.name}-{case.offset_m:g}m-{case.azimuth_deg:g}deg-{stem}.bin",
                        claimed, case)
-    return mix(legit, spoof, work / f"{case.tag}.bin", case)
+    return legit, spoof
+
+
+def prepare(case: Case, nav_path: str | Path, work: Path) -> Path:
+    """The mixed recording of a case (its scenes from `scenes`)."""
+    return mix(*scenes(case, nav_path, work), work / f"{case.tag}.bin", case)
 
 
 def run_case(case: Case, nav_path: str | Path, work: Path, defense: str = "full", assisted: bool = True,

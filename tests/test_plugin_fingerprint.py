@@ -1,0 +1,46 @@
+"""The plug-in fingerprint reads what an unmodified receiver measured on clean's output against the clean scene."""
+
+import numpy as np
+import pytest
+
+from semperfi.eval.plugin import SPOOFED_M, Ranges, range_differences, read_ranges
+from semperfi.receiver.rinex_obs import ObsEpoch, write_rinex_obs
+
+T0_S = 2190 * 604800.0 + 518400.0          # 1 Jan 2022 00:00 GPS, seconds since the GPS epoch
+CLOCK_M = np.linspace(0.0, 300.0, 50)      # the cleaned run's clock walks away from the reference's
+
+
+def _ranges(bias_m: dict[int, float], clock_m=0.0, seed: int = 0) -> dict[int, Ranges]:
+    rng = np.random.default_rng(seed)
+    t = T0_S + 0.1 * np.arange(CLOCK_M.size)
+    return {prn: Ranges(t, 2.0e7 + 1e5 * prn + b + clock_m + rng.normal(0.0, 0.01, t.size), np.full(t.size, 42.0))
+            for prn, b in bias_m.items()}
+
+
+def test_each_prns_bias_is_measured_apart_from_the_clocks_and_the_lost_and_spoofed_ones_are_named():
+    reference = _ranges({p: 0.0 for p in (2, 5, 7, 9, 12, 15, 20)})
+    cleaned = _ranges({2: 0.0, 5: 0.0, 7: 3.0, 9: 0.0, 12: -1.5, 15: 900.0}, CLOCK_M, seed=1)
+    d = range_differences(reference, cleaned)
+    assert d[7]["mean_m"] == pytest.approx(3.0, abs=0.05) and d[7]["status"] == "twin"
+    assert d[12]["mean_m"] == pytest.approx(-1.5, abs=0.05)
+    assert max(abs(d[p]["mean_m"]) for p in (2, 5, 9)) < 0.05
+    assert d[15]["status"] == "spoofed" and d[15]["mean_m"] > SPOOFED_M
+    assert d[20]["status"] == "absent" and d[20]["epochs"] == 0
+    assert d[7]["epochs"] == CLOCK_M.size
+
+
+def test_only_the_epochs_after_from_s_are_compared():
+    reference = _ranges({p: 0.0 for p in (2, 5, 7)})
+    cleaned = _ranges({2: 0.0, 5: 0.0, 7: 4.0}, seed=1)
+    late = range_differences(reference, cleaned, from_s=T0_S + 2.0)
+    assert late[7]["epochs"] == CLOCK_M.size - 20
+
+
+def test_our_rinex_observations_read_back_per_prn(tmp_path):
+    epochs = [ObsEpoch(2190, 518400.0 + 0.1 * k, {5: (2.1e7 + k, np.nan, -1200.0, 41.5), 9: (2.2e7, np.nan, 300.0, 38.0)})
+              for k in range(5)]
+    ranges = read_ranges(write_rinex_obs(tmp_path / "o.rnx", epochs))
+    assert sorted(ranges) == [5, 9]
+    np.testing.assert_allclose(ranges[5].range_m, 2.1e7 + np.arange(5), atol=1e-3)
+    np.testing.assert_allclose(ranges[5].t_s, T0_S + 0.1 * np.arange(5), atol=1e-6)
+    assert ranges[9].cn0_dbhz[0] == pytest.approx(38.0)
