@@ -1,0 +1,54 @@
+"""The rooms of the package import only what docs/architecture.md lets them: the receiver and the defence never
+see the simulator or the evaluation (the truth), the flight side talks to the receiver only over the link."""
+
+import ast
+from pathlib import Path
+
+PACKAGE = Path(__file__).resolve().parents[1] / "semperfi"
+LEAVES = {"address", "config", "errors"}     # top-level modules with no room imports of their own
+MAY_IMPORT = {
+    "gps": set(),
+    "iq": {"gps"},
+    "receiver": {"gps", "iq"},
+    "defense": {"gps", "iq", "receiver"},
+    "flight": {"gps"},
+    "sim": {"gps", "iq", "flight"},
+}
+
+
+def _imported_rooms(path: Path) -> set[str]:
+    """The package's top-level names a module imports (relative or absolute)."""
+    rooms = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.ImportFrom):
+            if node.level >= 2 and node.module:
+                rooms.add(node.module.split(".")[0])
+            elif node.level >= 2:
+                rooms.update(a.name for a in node.names)
+            elif node.level == 0 and node.module and node.module.startswith("semperfi."):
+                rooms.add(node.module.split(".")[1])
+        elif isinstance(node, ast.Import):
+            rooms.update(a.name.split(".")[1] for a in node.names if a.name.startswith("semperfi."))
+    return rooms
+
+
+def test_each_room_imports_only_what_it_may():
+    broken = []
+    for room, allowed in MAY_IMPORT.items():
+        for path in sorted((PACKAGE / room).glob("*.py")):
+            extra = _imported_rooms(path) - allowed - LEAVES - {"__version__"} - {room}
+            if extra:
+                broken.append(f"{room}/{path.name} imports {sorted(extra)}")
+    assert not broken, "; ".join(broken)
+
+
+def test_the_leaf_modules_import_no_room():
+    for name in LEAVES:
+        rooms = _imported_rooms(PACKAGE / f"{name}.py")
+        assert not rooms, f"{name}.py imports {sorted(rooms)}"
+
+
+def test_the_check_sees_a_forbidden_import(tmp_path):
+    module = tmp_path / "m.py"
+    module.write_text("from ..sim.world import World\nfrom ..gps import codes\nimport semperfi.eval.metrics\n")
+    assert _imported_rooms(module) == {"sim", "gps", "eval"}
