@@ -146,16 +146,35 @@ def refine_peak(samples: np.ndarray, fs_hz: float, if_hz: float, peak: Peak) -> 
     return near[0] if near else peak
 
 
-def decision_smooth(values: np.ndarray, ref: complex, lam: float) -> tuple[np.ndarray, complex]:
+def decision_smooth(values: np.ndarray, ref: complex, lam: float, rotation: complex = 1.0
+                    ) -> tuple[np.ndarray, complex]:
     """Decision-directed smoothing of per-period complex amplitudes: each period's data bit is its sign against the
-    running reference, which follows the bit-stripped values with gain lam. Returns the estimates (bits restored) and
-    the reference after the last period."""
+    running reference, which follows the bit-stripped values with gain lam. A signal turning in the frame of the
+    replica (a twin whose carrier is not the one tracked) turns the reference by `rotation` each period first, or
+    the smoothing would lag it. Returns the estimates (bits restored) and the reference after the last period."""
     est = np.empty_like(values)
     for i, a in enumerate(values):
+        ref = ref * rotation
         bit = 1.0 if (a * np.conj(ref)).real >= 0 else -1.0
         ref = ref + lam * (a * bit - ref)
         est[i] = ref * bit
     return est, ref
+
+
+ROTATION_LAG_PERIODS = 10        # the twin's turn is measured over this many periods (unambiguous within +-25 Hz)
+ROTATION_GAIN = 0.2               # per buffer: the twin's turn, smoothed over about a second
+
+
+def rotation_per_period(values: np.ndarray, lag: int = ROTATION_LAG_PERIODS) -> complex | None:
+    """How far a signal's per-period complex amplitudes turn each period, whatever its data bits: the angle of
+    sum (v_k v*_{k-lag})^2 is twice the turn over lag periods (squaring takes the bits away). None when too short."""
+    v = np.asarray(values)[np.isfinite(values)]
+    if v.size <= lag:
+        return None
+    s = np.sum((v[lag:] * np.conj(v[:-lag])) ** 2)
+    if s == 0:
+        return None
+    return complex(np.exp(0.5j * np.angle(s) / lag))
 
 
 # A legitimate peak closer than this to the spoofer's leaks into the spoofer's amplitude estimate (the code
@@ -186,6 +205,7 @@ class AdversaryTrack:
         self.channel = Channel(prn, fs_hz, if_hz, st, loop)
         self._ref = 0j                 # smoothed complex amplitude (bit removed)
         self._legit_ref = 0j           # the same for a legitimate signal within a chip
+        self._legit_turn = 0.0         # its turn per period (rad) in the spoofer's carrier frame: they differ in Doppler
         self._legit_est: np.ndarray | None = None   # its amplitude per code period of the last buffer
         self._twin_lag = 0.0           # and where it was, from the spoofer's replica
         self._lam = 1.0 / cfg.smoothing_ms
@@ -234,8 +254,12 @@ class AdversaryTrack:
         """The legitimate signal's amplitude per code period (in the spoofer's carrier frame), smoothed with its own
         data bits decided against a running reference."""
         raw = np.nan_to_num(raw)
+        if update:
+            turn = rotation_per_period(raw)
+            if turn is not None:
+                self._legit_turn += ROTATION_GAIN * (np.angle(turn) - self._legit_turn)
         ref = self._legit_ref if self._legit_ref != 0 else (raw[0] if raw.size else 0j)
-        est, ref = decision_smooth(raw, ref, self._lam)
+        est, ref = decision_smooth(raw, ref, self._lam, np.exp(1j * self._legit_turn))
         if update:
             self._legit_ref = ref
         return est
