@@ -107,18 +107,20 @@ def summarize(rows: list[dict]) -> None:
               and r["final_error_m"] < 5.0]
         late = [r for r in attacked if r["final_error_m"] is None]
         late_s = ", ".join(f"{r['verdict_s']:.1f}" for r in late if r["verdict_s"] is not None)
-        print(f"attacked runs: {len(attacked)}; adversarial verdicts: {sum(r['verdict_adversarial'] for r in attacked)}")
+        print(f"attacked runs: {len(attacked)}; "
+              f"adversarial verdicts: {sum(r['verdict_adversarial'] for r in attacked)}")
         print(f"  identification success (adversarial verdict, the run's last 5 s of fixes within 5 m of the truth): "
               f"{len(ok)}/{len(attacked) - len(late)}; {len(late)} runs had no fix in their last 5 s (verdicts at "
               f"{late_s} s: the legitimate twins were still decoding their time of week)")
         stale = [r for r in attacked if r["stale_after_verdict_s"]]
         if stale:
-            print(f"  runs where fixes stayed on the spoofer (> 100 m off) after the verdict (PRNs released for re-examination, not yet "
-                  f"cancelled): {len(stale)}, for at most {max(r['stale_after_verdict_s'] for r in stale):.1f} s")
+            print(f"  runs where fixes stayed on the spoofer (> 100 m off) after the verdict "
+                  f"(PRNs released for re-examination, not yet cancelled): {len(stale)}, "
+                  f"for at most {max(r['stale_after_verdict_s'] for r in stale):.1f} s")
         final = [r["final_error_m"] for r in attacked if r["final_error_m"] is not None]
         if final:
-            print(f"  final error (mean over the run's last 5 s): mean {np.mean(final):.2f} m, max {np.max(final):.2f} m "
-                  f"({len(final)} runs with a fix then)")
+            print(f"  final error (mean over the run's last 5 s): mean {np.mean(final):.2f} m, "
+                  f"max {np.max(final):.2f} m ({len(final)} runs with a fix then)")
         states = [str(r["final_state"]) for r in attacked]
         print(f"  state at the end: { {s: states.count(s) for s in sorted(set(states))} }")
         man = [r["maneuver"] for r in attacked if "maneuver" in r]
@@ -129,11 +131,13 @@ def summarize(rows: list[dict]) -> None:
         lag = [r["recovered_from_s"] - r["maneuver_end_s"] for r in attacked
                if r["recovered_from_s"] is not None and r["maneuver_end_s"] is not None]
         if lag:
-            print(f"  first recovered fix after the maneuver's end: mean {np.mean(lag):.1f} s (max {np.max(lag):.1f} s)")
+            print(f"  first recovered fix after the maneuver's end: mean {np.mean(lag):.1f} s "
+                  f"(max {np.max(lag):.1f} s)")
         print(f"  fixes labelled nominal/recovered > 10 m from the truth: {sum(r['wrong_good'] for r in attacked)}")
     if clean:
-        print(f"clean runs: {len(clean)}; with an alarm: {sum(r['alarms'] > 0 for r in clean)}; adversarial verdicts: "
-              f"{sum(r['verdict_adversarial'] for r in clean)}; wrong-good fixes: {sum(r['wrong_good'] for r in clean)}")
+        print(f"clean runs: {len(clean)}; with an alarm: {sum(r['alarms'] > 0 for r in clean)}; "
+              f"adversarial verdicts: {sum(r['verdict_adversarial'] for r in clean)}; "
+              f"wrong-good fixes: {sum(r['wrong_good'] for r in clean)}")
 
 
 if __name__ == "__main__":

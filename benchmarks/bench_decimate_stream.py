@@ -46,7 +46,8 @@ def child(path: str, fs_hz: float, out_fs_hz: float) -> None:
         power += float(np.vdot(y, y).real)
     # VmHWM is this process image's own peak (ru_maxrss from wait4 would include the parent's size at fork).
     hwm_kb = next(int(line.split()[1]) for line in open("/proc/self/status") if line.startswith("VmHWM"))
-    print(f"{reader.n_samples} in, {n_out} out, mean power {power / max(n_out, 1):.1f}, peak RSS {hwm_kb / 1024:.0f} MB")
+    print(f"{reader.n_samples} in, {n_out} out, mean power {power / max(n_out, 1):.1f}, "
+          f"peak RSS {hwm_kb / 1024:.0f} MB")
 
 
 def main() -> None:
@@ -75,9 +76,9 @@ def main() -> None:
         wall = time.perf_counter() - t0
         if status != 0:
             raise SystemExit("streaming child failed")
-        print(f"streamed {n / a.fs:.1f} s of {a.fs / 1e6:g} MSa/s ishort to {a.out_fs / 1e6:g} MSa/s: wall {wall:.1f} s, "
-              f"{n / wall / 1e6:.1f} MSa/s in ({n / a.fs / wall:.2f}x real time); the child's peak RSS is "
-              "printed above")
+        print(f"streamed {n / a.fs:.1f} s of {a.fs / 1e6:g} MSa/s ishort to {a.out_fs / 1e6:g} MSa/s: "
+              f"wall {wall:.1f} s, {n / wall / 1e6:.1f} MSa/s in ({n / a.fs / wall:.2f}x real time); "
+              "the child's peak RSS is printed above")
     finally:
         if not a.keep and path.exists():
             path.unlink()

@@ -46,7 +46,8 @@ BRDC = REPO.parent / "shared" / "data" / "brdc0010.22n"
 def iteration_time(work: Path, fs: float, repeat: int) -> None:
     path = work / "iteration.bin"
     cfg = load_scenario(None, [f"signal.fs_hz={fs}", "time.duration_s=3.0", "constellation.max_satellites=8",
-                               "attacker.enabled=true", "attacker.power_advantage_db=6.0", 'signal.format="gr_complex"'])
+                               "attacker.enabled=true", "attacker.power_advantage_db=6.0",
+                               'signal.format="gr_complex"'])
     simulate_to_file(cfg, path)
     reader = open_iq(path)
     x = reader.read(0, reader.n_samples)
@@ -63,7 +64,8 @@ def iteration_time(work: Path, fs: float, repeat: int) -> None:
         t0 = time.perf_counter()
         cleaned = canceller.push(x[int(1.0 * fs): int(2.0 * fs)])   # one second, every spoofed PRN
         for p in peaks:   # the verification: each PRN around its attacker's Doppler, as the guard does it
-            acquire(cleaned[-int(0.01 * fs):], fs, [p.prn], DopplerGrid(p.doppler_hz, 2000.0, 333.0), coherent_ms=2, noncoherent=5)
+            acquire(cleaned[-int(0.01 * fs):], fs, [p.prn], DopplerGrid(p.doppler_hz, 2000.0, 333.0),
+                    coherent_ms=2, noncoherent=5)
         times.append(time.perf_counter() - t0)
     print(f"one cancellation iteration: {len(prns)} spoofed PRNs, 1 s at {fs / 1e6:g} MSa/s, re-acquisition included: "
           f"{min(times):.2f} s (best of {repeat}; all: {', '.join(f'{t:.2f}' for t in times)}); "
@@ -119,7 +121,8 @@ def recovery_times(work: Path) -> None:
         recovered = next((e for e in events if e["event"] == "recovered"), None)
         if alarm and recovered:
             print(f"{name}: alarm at {alarm['t_rx_s']:.2f} s, first recovered fix at {recovered['t_rx_s']:.2f} s: "
-                  f"{recovered['time_to_recover_s']:.2f} s of signal; run took {wall:.1f} s for 35 s of signal", flush=True)
+                  f"{recovered['time_to_recover_s']:.2f} s of signal; run took {wall:.1f} s for 35 s of signal",
+                  flush=True)
         else:
             print(f"{name}: alarm {alarm and alarm['t_rx_s']}, recovered {recovered}", flush=True)
 

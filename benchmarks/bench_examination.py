@@ -3,9 +3,10 @@
     .venv/bin/python benchmarks/bench_examination.py [--fs 4e6] [--duration 30] [--repeat 2]
 
 Every tracked PRN is re-acquired over 40 ms and put to the two-path test every second (twice a second, the two-path
-test over twice the samples, once an attack is known). Measured on a recording with no attacker (the cost paid all the time) and with a
-synchronized attacker 1 km east at +6 dB (examination at the highest sensitivity, plus cancellation). Wall time and
-CPU time of the whole run, best of --repeat, and the real-time factor (seconds of signal per second of wall time).
+test over twice the samples, once an attack is known). Measured on a recording with no attacker (the cost paid all
+the time) and with a synchronized attacker 1 km east at +6 dB (examination at the highest sensitivity, plus
+cancellation). Wall time and CPU time of the whole run, best of --repeat, and the real-time factor (seconds of
+signal per second of wall time).
 """
 
 import argparse
@@ -59,8 +60,8 @@ def main() -> None:
             rows = {mode: timed_run(path, Path(tmp) / mode, mode, a.repeat) for mode in ("off", "detect", "full")}
             print(f"{name}, {a.duration:g} s at {a.fs / 1e6:g} MSa/s:")
             for mode, (wall, cpu) in rows.items():
-                print(f"  defence {mode:6s}: wall {wall:6.1f} s ({a.duration / wall:4.2f}x real time), CPU {cpu:6.1f} s, "
-                      f"CPU / off {cpu / rows['off'][1]:4.2f}", flush=True)
+                print(f"  defence {mode:6s}: wall {wall:6.1f} s ({a.duration / wall:4.2f}x real time), "
+                      f"CPU {cpu:6.1f} s, CPU / off {cpu / rows['off'][1]:4.2f}", flush=True)
 
 
 if __name__ == "__main__":

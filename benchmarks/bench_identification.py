@@ -1,4 +1,5 @@
-"""The Adversarial Peak Identifier over MAVLink, many times: maneuver size, identification and false-identification rates.
+"""The Adversarial Peak Identifier over MAVLink, many times: maneuver size, identification and false-identification
+rates.
 
     .venv/bin/python benchmarks/bench_identification.py [--runs 50] [--time-scale 20]
 
@@ -109,7 +110,8 @@ def main() -> None:
     print(f"  paper's test: spoofed track identified and true track cleared in {paper_ok}/{n}; "
           f"false identifications (true track called adversarial) {paper_false}/{n}; IMU-to-true-track mean "
           f"distance {np.mean(distances):.2f} m (max {np.max(distances):.2f})")
-    print(f"  per-peak verdict, 4 of 8 PRNs spoofed: spoofed peaks called adversarial {spoofed_caught}/{spoofed_total}, "
+    print(f"  per-peak verdict, 4 of 8 PRNs spoofed: spoofed peaks called adversarial "
+          f"{spoofed_caught}/{spoofed_total}, "
           f"legitimate peaks called adversarial {legit_wrong}/{legit_total}, {undecided} peaks left undecided "
           f"(too little motion along their line of sight, or ambiguous); runs with a false identification and no "
           f"attacker {per_peak_false}/{n}")

@@ -37,13 +37,15 @@ def main() -> None:
     if not long.exists():
         wall, rss = run_child(["sim", "-o", str(long), "--fs", str(a.fs), "--format", "ibyte", "--duration",
                                str(60 * a.minutes)])
-        print(f"simulating {a.minutes:g} min at {a.fs / 1e6:g} MSa/s: wall {wall:6.1f} s, peak RSS {rss:6.0f} MB", flush=True)
+        print(f"simulating {a.minutes:g} min at {a.fs / 1e6:g} MSa/s: wall {wall:6.1f} s, peak RSS {rss:6.0f} MB",
+              flush=True)
     short = a.work / "short.bin"
     if not short.exists():   # the first minute, copied without reading the whole file
         with open(long, "rb") as src, open(short, "wb") as dst:
             dst.write(src.read(int(60 * a.fs) * 2))
     for path, label in ((short, "1 min"), (long, f"{a.minutes:g} min")):
-        wall, rss = run_child(["run", str(path), "--fs", str(a.fs), "--format", "ibyte", "--out", str(a.work / path.stem)])
+        wall, rss = run_child(["run", str(path), "--fs", str(a.fs), "--format", "ibyte",
+                               "--out", str(a.work / path.stem)])
         print(f"{label:>7} at {a.fs / 1e6:g} MSa/s: wall {wall:6.1f} s, peak RSS {rss:6.0f} MB", flush=True)
 
 

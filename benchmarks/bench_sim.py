@@ -56,9 +56,9 @@ def main() -> None:
                                capture_output=True, text=True, check=True)
             results.append(json.loads(r.stdout))
     for r in results:
-        print(f"{r['duration_s']:>5.0f} s of signal at {a.fs / 1e6:g} MSa/s, {r['legit']} legit + {r['spoof']} spoofed: "
-              f"{r['wall_s']:6.2f} s wall on one core ({r['duration_s'] / r['wall_s']:.2f}x real time), "
-              f"peak RSS {r['rss_mb']:.0f} MB")
+        print(f"{r['duration_s']:>5.0f} s of signal at {a.fs / 1e6:g} MSa/s, "
+              f"{r['legit']} legit + {r['spoof']} spoofed: {r['wall_s']:6.2f} s wall on one core "
+              f"({r['duration_s'] / r['wall_s']:.2f}x real time), peak RSS {r['rss_mb']:.0f} MB")
 
 
 if __name__ == "__main__":

@@ -94,7 +94,8 @@ def main() -> None:
 @main.command()
 @click.argument("scenario", required=False, type=click.Path(dir_okay=False))
 @click.option("-o", "--out", "out_path", required=True, type=click.Path(dir_okay=False), help="IQ file to write")
-@click.option("--format", "fmt", type=click.Choice(["ibyte", "ishort", "gr_complex", "cfloat", "byte", "short", "float"]),
+@click.option("--format", "fmt",
+              type=click.Choice(["ibyte", "ishort", "gr_complex", "cfloat", "byte", "short", "float"]),
               help="sample format (byte, short, float: real samples at --if)")
 @click.option("--fs", "fs_hz", type=float, help="sample rate, Hz")
 @click.option("--if", "if_hz", type=float, help="intermediate frequency, Hz")
@@ -225,7 +226,8 @@ def acquire(file, fs_hz, fmt, iq_swap, if_hz, prn_text, start_s, coherent_ms, no
 @click.option("--nav", "nav_path", type=click.Path(dir_okay=False), help="RINEX navigation file (assisted mode)")
 @click.option("--out", "out_dir", default="out/run", show_default=True, type=click.Path(file_okay=False))
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), help="receiver TOML configuration")
-@click.option("--defense", type=click.Choice(["off", "detect", "full"]), help="SemperFi's defence (default full; off = the conventional receiver)")
+@click.option("--defense", type=click.Choice(["off", "detect", "full"]),
+              help="SemperFi's defence (default full; off = the conventional receiver)")
 @click.option("--adversarial", help="which peak is the attacker's: auto | stronger | later | prn:LIST")
 @click.option("--set", "sets", multiple=True, metavar="SECTION.KEY=VALUE", help="override a configuration key")
 @_window_options
@@ -235,7 +237,8 @@ def acquire(file, fs_hz, fmt, iq_swap, if_hz, prn_text, start_s, coherent_ms, no
 @click.option("--link", "link_addr", metavar="HOST:PORT",
               help="the flight side's authenticated link (semperfi companion): on an alarm it flies a maneuver and "
                    "sends the IMU track back")
-@click.option("--link-key", "link_key_path", type=click.Path(dir_okay=False), help="file holding the link's pre-shared key")
+@click.option("--link-key", "link_key_path", type=click.Path(dir_okay=False),
+              help="file holding the link's pre-shared key")
 @click.option("--mavlink-gps", "mavlink_gps_url", metavar="URL",
               help="be an autopilot's GPS: every fix as MAVLink GPS_INPUT at 10 Hz (ArduPilot GPS1_TYPE 14) to "
                    "udpout:HOST:PORT, tcp:HOST:PORT or a serial device; no fix while spoofing is suspected")
@@ -256,7 +259,8 @@ def run(file, fs_hz, fmt, iq_swap, if_hz, nav_path, out_dir, config_path, defens
     from .defense.imu_track import read_imu_csv
     from .receiver.run import run_file
 
-    sets = list(sets) + [f'defense.mode="{defense}"'] * bool(defense) + [f'defense.adversarial="{adversarial}"'] * bool(adversarial)
+    sets = (list(sets) + [f'defense.mode="{defense}"'] * bool(defense)
+            + [f'defense.adversarial="{adversarial}"'] * bool(adversarial))
     try:
         cfg = _receiver_config(config_path, sets)
         imu = read_imu_csv(imu_path).shifted(-skip_s) if imu_path else None   # its t_s counts from FILE's start
@@ -324,7 +328,8 @@ def clean(file, out_path, fs_hz, fmt, iq_swap, if_hz, adversarial, config_path, 
     except (ValueError, OSError) as exc:
         _fail(str(exc), getattr(exc, "exit_code", EXIT_BAD_INPUT))
     click.echo(f"cleaned {s.duration_s:.1f} s in {s.wall_s:.1f} s into {s.out_path}")
-    click.echo(f"  alarms on PRNs {' '.join(map(str, s.alarms)) or 'none'}; cancelled {' '.join(map(str, s.cancelled)) or 'none'}; "
+    click.echo(f"  alarms on PRNs {' '.join(map(str, s.alarms)) or 'none'}; "
+               f"cancelled {' '.join(map(str, s.cancelled)) or 'none'}; "
                f"verified clean {' '.join(map(str, s.verified)) or 'none'}")
     for prn, stages in sorted(s.attenuation_db.items()):
         last = [st["attenuation_db"][-1] for st in stages if st["attenuation_db"]]

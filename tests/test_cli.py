@@ -13,7 +13,7 @@ def semperfi(*args, cwd=None):
 
 def one_line_error(result, *fragments):
     assert result.returncode != 0, result.stdout
-    lines = [l for l in result.stderr.splitlines() if l.strip()]
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
     assert len(lines) == 1, result.stderr
     assert "Traceback" not in result.stderr
     for f in fragments:
@@ -54,7 +54,7 @@ def test_sim_then_acquire_round_trip(tmp_path):
     assert "legitimate PRNs" in r.stdout
     r = semperfi("acquire", str(out), "--prn", "1-32")
     assert r.returncode == 0, r.stderr
-    acquired = [l for l in r.stdout.splitlines()[1:] if l.strip()]
+    acquired = [line for line in r.stdout.splitlines()[1:] if line.strip()]
     assert len(acquired) >= 4, r.stdout
 
 
@@ -117,7 +117,8 @@ def test_nan_samples_are_zeroed_and_said(tmp_path):
     x = np.random.default_rng(2).normal(size=2 * 400_000).astype(np.float32)
     x[::997] = np.nan
     (tmp_path / "nan.bin").write_bytes(x.tobytes())
-    r = semperfi("run", str(tmp_path / "nan.bin"), "--fs", "2e6", "--format", "gr_complex", "--out", str(tmp_path / "o"))
+    r = semperfi("run", str(tmp_path / "nan.bin"), "--fs", "2e6", "--format", "gr_complex",
+                 "--out", str(tmp_path / "o"))
     assert "NaN or infinite" in r.stderr and "Traceback" not in r.stderr, r.stderr
     assert '"nonfinite_samples"' in (tmp_path / "o" / "events.jsonl").read_text()
 

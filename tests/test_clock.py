@@ -43,8 +43,8 @@ def _fix(t, bias_ns, drift_ns_s, state="nominal", raim="pass"):
                vdop=1.2, residual_rms_m=1.0, state=state, raim=raim, tpl_ns=42.0, clock_sigma_ns=SIGMA_B_NS)
 
 
-def _run(seconds, push_ns=lambda t: 0.0, push_rate=lambda t: 0.0, seed=0, drift_measured=True, state=lambda t: "nominal",
-         random_walk=False):
+def _run(seconds, push_ns=lambda t: 0.0, push_rate=lambda t: 0.0, seed=0, drift_measured=True,
+         state=lambda t: "nominal", random_walk=False):
     """(guard, [(the fix out of the guard, its time error against the true clock in ns)])."""
     rng = np.random.default_rng(seed)
     guard = ClockGuard(StubGuard())
@@ -240,7 +240,8 @@ def test_clean_drifting_and_flying_scenes_never_alarm_and_tpl_bounds_the_time(tm
                                       "receiver.clock_drift_s_s=-1e-6", duration=30.0)
     for name, fx, ev in (("drift", fixes, events), ("flying", flying, flying_events)):
         assert fx, name
-        assert not [e for e in ev if e["event"] == "clock_alarm"], (name, [e for e in ev if e["event"] == "clock_alarm"])
+        assert not [e for e in ev if e["event"] == "clock_alarm"], \
+            (name, [e for e in ev if e["event"] == "clock_alarm"])
         nominal = [f for f in fx if f["time_state"] == "nominal"]
         assert len(nominal) >= 0.7 * len(fx), (name, len(nominal), len(fx))
         assert not _beyond_tpl(fx), (name, _beyond_tpl(fx)[:5])

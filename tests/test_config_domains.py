@@ -40,8 +40,9 @@ def test_value_outside_domain_is_refused(key):
 def test_cli_refuses_out_of_range_config_in_one_line(key, tmp_path):
     dummy = tmp_path / "x.bin"
     dummy.write_bytes(b"\0" * 4096)
-    res = subprocess.run([sys.executable, "-m", "semperfi.cli", "run", str(dummy), "--fs", "2e6", "--format", "ibyte", "--out", str(tmp_path / "out"),
-                          "--set", f"{key}={_outside(DOMAINS[key])}"], capture_output=True, text=True, timeout=120)
+    res = subprocess.run([sys.executable, "-m", "semperfi.cli", "run", str(dummy), "--fs", "2e6", "--format", "ibyte",
+                          "--out", str(tmp_path / "out"), "--set", f"{key}={_outside(DOMAINS[key])}"],
+                         capture_output=True, text=True, timeout=120)
     assert res.returncode != 0, f"exit 0 for {key} out of range"
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and key in lines[0], f"stderr is not one line naming {key}: {res.stderr!r}"

@@ -145,7 +145,8 @@ def test_the_fits_code_correlation_is_what_the_bank_measures(prn):
                        for k, s0 in enumerate(starts)])
     lags = bank_lags(0.0)
     measured = np.mean(correlator_bank(x, 0, blocks, code_bank(prn, fs), lags).real, axis=0)
-    assert np.max(np.abs(measured - code_correlation(prn, lags))) < 0.02, np.round(measured - code_correlation(prn, lags), 3)
+    assert np.max(np.abs(measured - code_correlation(prn, lags))) < 0.02, \
+        np.round(measured - code_correlation(prn, lags), 3)
     assert abs(code_correlation(prn, 1.0) - {8: -65 / 1023, 7: 63 / 1023}[prn]) < 1e-12
 
 
@@ -206,7 +207,8 @@ def test_seamless_takeover_alarms_when_the_peaks_part_by_500_ns(tmp_path):
     assert len(alarms) >= 3, "a takeover dragging at 60 m/s parts most PRNs' peaks within 10 s"
 
     def separation_ns(prn, t):
-        at = lambda src: min((r for r in rows if r["prn"] == prn and r["source"] == src), key=lambda r: abs(r["t_rx_s"] - t))
+        def at(src):
+            return min((r for r in rows if r["prn"] == prn and r["source"] == src), key=lambda r: abs(r["t_rx_s"] - t))
         return abs(at("spoof")["pseudorange_m"] - at("legit")["pseudorange_m"]) / 0.299792458
     for i, (t, alarm) in enumerate(alarms):
         sep = separation_ns(alarm.prn, t)
@@ -279,7 +281,7 @@ def _run_defended(path, out, *sets, nav=None):
     cfg = _receiver_config(None, ['defense.mode="full"', *sets])
     t0 = time.perf_counter()
     summary = run_file(path, None, None, None, cfg, out, nav, receiver_factory=DefendedReceiver)
-    events = [json.loads(l) for l in open(out / "events.jsonl")]
+    events = [json.loads(line) for line in open(out / "events.jsonl")]
     return summary, list(csv.DictReader(open(out / "fixes.csv"))), events, time.perf_counter() - t0
 
 
@@ -380,7 +382,7 @@ def test_clean_keeps_format_rate_and_length_and_is_deterministic(tmp_path):
     assert digests[0] == digests[1], "same input, same output, bit for bit"
     original, cleaned = open_iq(tmp_path / "s.bin"), open_iq(tmp_path / "c1.bin")
     assert (cleaned.n_samples, cleaned.fs_hz, cleaned.fmt.name) == (original.n_samples, original.fs_hz, "ibyte")
-    events = [json.loads(l)["event"] for l in open(tmp_path / "c1.events.jsonl")]
+    events = [json.loads(line)["event"] for line in open(tmp_path / "c1.events.jsonl")]
     assert "spoofing_alarm" in events and "defense_summary" in events
 
 
@@ -426,7 +428,8 @@ def test_defense_options_are_checked(tmp_path):
     import subprocess
     import sys
     simulate(tmp_path / "s.bin", "constellation.max_satellites=4", duration=0.5)
-    for args, fragment in ((["--adversarial", "loudest"], "--adversarial"), (["--set", 'defense.mode="maybe"'], "defense.mode")):
+    for args, fragment in ((["--adversarial", "loudest"], "--adversarial"),
+                           (["--set", 'defense.mode="maybe"'], "defense.mode")):
         r = subprocess.run([sys.executable, "-m", "semperfi.cli", "run", str(tmp_path / "s.bin"), "--out",
                             str(tmp_path / "o"), *args], capture_output=True, text=True, timeout=300)
         assert r.returncode != 0 and fragment in r.stderr and "Traceback" not in r.stderr, r.stderr

@@ -31,7 +31,8 @@ def test_gnss_sdr_fixes_on_the_truth(tmp_path, brdc_path):
     cfg, fixes = _run(tmp_path, "static", brdc_path)
     assert len(fixes) >= 20, f"GNSS-SDR gave {len(fixes)} fixes"
     err = horizontal_errors_m(fixes, cfg["receiver"]["lat_deg"], cfg["receiver"]["lon_deg"])
-    assert np.mean(err) < 5.0, f"GNSS-SDR horizontal error: mean {np.mean(err):.2f} m, p95 {np.percentile(err, 95):.2f} m"
+    assert np.mean(err) < 5.0, \
+        f"GNSS-SDR horizontal error: mean {np.mean(err):.2f} m, p95 {np.percentile(err, 95):.2f} m"
 
 
 @needs_gnss_sdr
@@ -69,7 +70,8 @@ def test_plug_in_filter_output_makes_gnss_sdr_fix_the_truth(tmp_path, brdc_path)
                                         "attacker.power_advantage_db=6.0", "attacker.offset_east_m=1000.0"])
     spoofed = tmp_path / "spoofed.bin"
     simulate_to_file(cfg, spoofed)
-    summary = clean_file(spoofed, tmp_path / "clean.bin", None, None, None, _receiver_config(None, ['defense.mode="full"']))
+    summary = clean_file(spoofed, tmp_path / "clean.bin", None, None, None,
+                         _receiver_config(None, ['defense.mode="full"']))
     assert set(summary.cancelled) and set(summary.verified) == set(summary.cancelled)
     fixes = run_gnss_sdr(tmp_path / "clean.bin", FS, "ishort", 0.0, tmp_path / "clean.gnss-sdr", timeout_s=600)
     assert len(fixes) >= 20, f"GNSS-SDR gave {len(fixes)} fixes on the cleaned file"

@@ -10,7 +10,8 @@ def test_find_maneuver_in_hover_maneuver_hover(tmp_path):
     t, n, e, d = plan_trajectory(legs, ManeuverLimits(dt_s=0.1))
     hover = np.arange(0, 30, 0.1)
     tt = np.r_[hover, 30 + t, 30 + t[-1] + 0.1 + hover]
-    nn = np.r_[np.zeros_like(hover), n, np.full_like(hover, n[-1])] + 0.05 * np.random.default_rng(1).normal(size=len(tt))
+    nn = (np.r_[np.zeros_like(hover), n, np.full_like(hover, n[-1])]
+          + 0.05 * np.random.default_rng(1).normal(size=len(tt)))
     ee = np.r_[np.zeros_like(hover), e, np.full_like(hover, e[-1])]
     path = tmp_path / "track.csv"
     with open(path, "w") as f:

@@ -20,7 +20,7 @@ CN0_DBHZ = 45.0
 
 
 @pytest.fixture(scope="module")
-def scene(synth):
+def scene(synth):  # noqa: F811 -- synth is test_pvt's fixture, imported above for its name
     """Noise-free observations, the linearised geometry (ENU) and each range's sigma at Boston."""
     truth = ecef(*BOSTON)
     obs, _ = observe(synth, truth, START.tow_s, DEFAULT_IONO, True, min_el_deg=5.0)

@@ -288,7 +288,8 @@ def test_the_imu_track_is_moved_from_the_vehicles_clock_to_the_receivers(vehicle
     maneuver.request(12.0, 7)                    # the alarm goes, the request is read at sample time 12.0 s
     t_vehicle = 1010.0 + np.arange(0.0, 15.0, 0.02)
     flight.inbox.append(("maneuver_done", {"maneuver_id": "m", "t_s": t_vehicle.tolist(),
-                                           **{k: np.zeros(t_vehicle.size).tolist() for k in ("north_m", "east_m", "down_m")}}))
+                                           **{k: np.zeros(t_vehicle.size).tolist()
+                                              for k in ("north_m", "east_m", "down_m")}}))
     maneuver.pending(13.0)
     assert maneuver.track is not None
     assert np.allclose(maneuver.track.t_s, t_vehicle - expect_shift_s)

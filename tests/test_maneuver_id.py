@@ -91,7 +91,9 @@ def test_the_alarm_carries_each_prns_line_of_sight_from_the_fix(brdc_path):
                                                  'time.start="2022-01-01T00:00:27"']))
     pos = geodetic_to_ecef(np.radians(LAT), np.radians(LON), H + 50.0)
     fix = SimpleNamespace(t_rx_s=12.0, gps_tow_s=c.start.tow_s + 12.0, pos_ecef_m=pos, lat_deg=LAT, lon_deg=LON)
-    ephemeris_of = lambda prn, tow_s: c.ephemerides.get(prn)   # noqa: E731
+
+    def ephemeris_of(prn, tow_s):
+        return c.ephemerides.get(prn)
     link = _Link()
     LinkedManeuver(link, 2e6, sky=lambda: sky([1, 7, 30, 33], ephemeris_of, fix)).request(12.0, 7)
     kind, payload = link.sent[0]

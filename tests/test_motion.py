@@ -36,9 +36,10 @@ def circle_csv(path, lla: bool, radius_m=100.0, speed_m_s=10.0, duration_s=4.0):
 @pytest.mark.parametrize("lla", [False, True])
 def test_trajectory_file_is_followed_and_doppler_matches_pseudorange_rate(tmp_path, lla):
     t, xyz = circle_csv(tmp_path / "traj.csv", lla)
-    cfg = load_scenario(None, ["signal.fs_hz=2e6", "time.duration_s=3.0", f'receiver.trajectory="{tmp_path / "traj.csv"}"',
-                               f"receiver.trajectory_lla={'true' if lla else 'false'}", "constellation.max_satellites=6",
-                               "constellation.ionosphere=false"])
+    cfg = load_scenario(None, ["signal.fs_hz=2e6", "time.duration_s=3.0",
+                               f'receiver.trajectory="{tmp_path / "traj.csv"}"',
+                               f"receiver.trajectory_lla={'true' if lla else 'false'}",
+                               "constellation.max_satellites=6", "constellation.ionosphere=false"])
     out = tmp_path / "moving.bin"
     simulate_to_file(cfg, out)
     rx = list(csv.DictReader(open(truth_paths(out)["receiver.csv"])))

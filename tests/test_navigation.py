@@ -351,7 +351,8 @@ def other_upload():
 
 def test_new_iode_replaces_the_ephemeris_only_when_its_set_is_complete():
     new = other_upload()
-    k_first = 5 * (int(START.tow_s) // 30) - 1       # a subframe 5, then frame one (old upload), frames two, three (new)
+    # a subframe 5, then frame one (old upload), frames two, three (new)
+    k_first = 5 * (int(START.tow_s) // 30) - 1
     bits = np.concatenate([lnav.subframe_bits(k, EPH if k < k_first + 6 else new, IONO, UTC, CONSTELLATION)
                            for k in range(k_first, k_first + 14)])[100:]
     values = soft(bits, seed=4)
@@ -406,7 +407,8 @@ def test_spliced_stream_with_another_time_is_flagged(misalign):
     assert not any(e.tow_inconsistent for e in good[2:])
     b_start = a.size + (300 - misalign) % 300         # channel bit index of B's first whole subframe
     assert [(e.start_bit_index, e.t_sv_start_s) for e in good] == \
-        [(s, float(6 * (k_b + (s - a.size + misalign) // 300) % WEEK_S)) for s in range(b_start, b_start + 300 * len(good), 300)]
+        [(s, float(6 * (k_b + (s - a.size + misalign) // 300) % WEEK_S))
+         for s in range(b_start, b_start + 300 * len(good), 300)]
     assert decoder.time_anchor == (good[-1].start_bit_index, good[-1].t_sv_start_s)
     assert decoder.ephemeris == b_eph                 # from B's subframes after the re-anchor only
 

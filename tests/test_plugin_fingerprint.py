@@ -37,7 +37,8 @@ def test_only_the_epochs_after_from_s_are_compared():
 
 
 def test_our_rinex_observations_read_back_per_prn(tmp_path):
-    epochs = [ObsEpoch(2190, 518400.0 + 0.1 * k, {5: (2.1e7 + k, np.nan, -1200.0, 41.5), 9: (2.2e7, np.nan, 300.0, 38.0)})
+    epochs = [ObsEpoch(2190, 518400.0 + 0.1 * k,
+                       {5: (2.1e7 + k, np.nan, -1200.0, 41.5), 9: (2.2e7, np.nan, 300.0, 38.0)})
               for k in range(5)]
     ranges = read_ranges(write_rinex_obs(tmp_path / "o.rnx", epochs))
     assert sorted(ranges) == [5, 9]

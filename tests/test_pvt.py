@@ -128,7 +128,8 @@ def test_moving_receiver_velocity_and_clock_drift(synth, boston):
     verr = float(np.linalg.norm(fix.vel_ecef_m_s - vel))
     # the model is exact here, so hold it to 1 mm/s: tight enough to notice a satellite clock drift left out
     assert verr < 1e-3, f"velocity {fix.vel_ecef_m_s} vs {vel}: {verr * 1e3:.3f} mm/s off"
-    assert abs(fix.clock_drift_m_s - C * DRIFT_S_S) < 1e-3, f"drift {fix.clock_drift_m_s:.4f} vs {C * DRIFT_S_S:.4f} m/s"
+    assert abs(fix.clock_drift_m_s - C * DRIFT_S_S) < 1e-3, \
+        f"drift {fix.clock_drift_m_s:.4f} vs {C * DRIFT_S_S:.4f} m/s"
     assert pos_error_m(fix, boston) < 0.01
 
 

@@ -39,7 +39,8 @@ def enu_errors(fixes, truth_rows=None):
     """ENU error of each fix against the truth receiver position at the fix's own t_rx_s."""
     truth = {}
     if truth_rows:
-        truth = {round(float(r["t_rx_s"]), 3): np.array([float(r[k]) for k in ("x_m", "y_m", "z_m")]) for r in truth_rows}
+        truth = {round(float(r["t_rx_s"]), 3): np.array([float(r[k]) for k in ("x_m", "y_m", "z_m")])
+                 for r in truth_rows}
     static = geodetic_to_ecef(np.radians(LAT), np.radians(LON), H)
     rot = enu_rotation(np.radians(LAT), np.radians(LON))
     errs = []
@@ -60,7 +61,7 @@ def static_run(tmp_path_factory):
 def test_every_satellite_is_acquired_at_the_truths_code_phase_and_doppler(static_run):
     cfg, d, _, _ = static_run
     truth = [r for r in read_signal_truth(truth_paths(d / "s.bin")["signals.csv"]) if r["t_rx_s"] == 0.0]
-    events = [json.loads(l) for l in open(d / "out" / "events.jsonl")]
+    events = [json.loads(line) for line in open(d / "out" / "events.jsonl")]
     acq = {e["prn"]: e for e in events if e["event"] == "acquisition"}
     assert {int(r["prn"]) for r in truth} <= set(acq)
     for r in truth:
@@ -122,10 +123,10 @@ def test_rinex_observations_read_back_by_georinex_give_the_same_fixes(static_run
         assert abs(again.clock_bias_m - float(fix["clock_bias_m"])) < 5.0
     from semperfi.gps.constants import L1_WAVELENGTH_M
     for sv in obs.sv.values:   # carrier phase has the sign of the range: over the run it moves as the code does
-        c, l = obs["C1C"].sel(sv=sv).values, obs["L1C"].sel(sv=sv).values
-        ok = np.isfinite(c) & np.isfinite(l)
+        c, phase_cycles = obs["C1C"].sel(sv=sv).values, obs["L1C"].sel(sv=sv).values
+        ok = np.isfinite(c) & np.isfinite(phase_cycles)
         assert ok.mean() > 0.9, sv
-        code_m, phase_m = c[ok][-1] - c[ok][0], L1_WAVELENGTH_M * (l[ok][-1] - l[ok][0])
+        code_m, phase_m = c[ok][-1] - c[ok][0], L1_WAVELENGTH_M * (phase_cycles[ok][-1] - phase_cycles[ok][0])
         assert abs(code_m - phase_m) < 10.0, (sv, code_m, phase_m)
 
 
@@ -155,7 +156,8 @@ def test_circular_trajectory_at_10_m_s_is_tracked_within_10_m(tmp_path, brdc_pat
     truth = list(csv.DictReader(open(truth_paths(tmp_path / "c.bin")["receiver.csv"])))
     enu = enu_errors(fixes, truth)
     err3d = np.linalg.norm(enu, axis=1)
-    assert np.max(np.hypot(enu[:, 0], enu[:, 1])) < 10.0, f"worst horizontal error {np.max(np.hypot(enu[:, 0], enu[:, 1])):.1f} m"
+    assert np.max(np.hypot(enu[:, 0], enu[:, 1])) < 10.0, \
+        f"worst horizontal error {np.max(np.hypot(enu[:, 0], enu[:, 1])):.1f} m"
     speeds = [np.hypot(float(f["vx_m_s"]), float(f["vy_m_s"])) for f in fixes]
     assert np.median(np.abs(np.array([np.linalg.norm([float(f[k]) for k in ("vx_m_s", "vy_m_s", "vz_m_s")])
                                       for f in fixes]) - 10.0)) < 0.5
@@ -172,7 +174,7 @@ def test_truncated_recording_gives_fixes_to_its_end(static_run, tmp_path):
     assert short.truncated_bytes == 3
     fixes = read_fixes(tmp_path / "out")
     assert fixes and float(fixes[-1]["t_rx_s"]) > 0.9 * 38.0 - 1.0
-    events = [json.loads(l)["event"] for l in open(tmp_path / "out" / "events.jsonl")]
+    events = [json.loads(line)["event"] for line in open(tmp_path / "out" / "events.jsonl")]
     assert "truncated_input" in events
 
 

@@ -79,7 +79,8 @@ def test_acquire_over_rtl_tcp_end_to_end(tmp_path):
     t = np.arange(n) / fs
     chips = np.floor(300.0 + t * 1.023e6).astype(int) % 1023
     rng = np.random.default_rng(9)
-    x = 0.4 * ca_code(11)[chips] * np.exp(2j * np.pi * -2100.0 * t) + rng.standard_normal(n) + 1j * rng.standard_normal(n)
+    x = (0.4 * ca_code(11)[chips] * np.exp(2j * np.pi * -2100.0 * t)
+         + rng.standard_normal(n) + 1j * rng.standard_normal(n))
     iq = np.empty(2 * n, dtype=np.uint8)
     iq[0::2] = np.clip(np.rint(127.5 + 25 * x.real), 0, 255)
     iq[1::2] = np.clip(np.rint(127.5 + 25 * x.imag), 0, 255)

@@ -46,8 +46,10 @@ def test_every_satellite_acquires_at_the_truths_code_phase_and_doppler(clean):
         peak = cafs[prn].best
         assert peak is not None, f"PRN {prn} not acquired"
         dcode = (peak.code_phase_chips - truth["code_phase_chips"] + 511.5) % 1023 - 511.5
-        assert abs(dcode) < 0.15, f"PRN {prn}: code phase {peak.code_phase_chips:.3f} vs truth {truth['code_phase_chips']:.3f}"
-        assert abs(peak.doppler_hz - truth["doppler_hz"]) < 100, f"PRN {prn}: Doppler {peak.doppler_hz:.0f} vs {truth['doppler_hz']:.0f}"
+        assert abs(dcode) < 0.15, \
+            f"PRN {prn}: code phase {peak.code_phase_chips:.3f} vs truth {truth['code_phase_chips']:.3f}"
+        assert abs(peak.doppler_hz - truth["doppler_hz"]) < 100, \
+            f"PRN {prn}: Doppler {peak.doppler_hz:.0f} vs {truth['doppler_hz']:.0f}"
 
 
 @pytest.mark.parametrize("cn0, fmt, if_hz", [(35.0, "ishort", 0.0), (45.0, "ishort", 0.0), (45.0, "short", 6e5)])
@@ -77,7 +79,8 @@ def test_navigation_bits_ride_on_code_epochs_and_pass_parity(tmp_path):
     p = correlate_ms(open_iq(out).read(0, int(7.0 * FS)), FS, prn, t0["code_phase_chips"], t0["doppler_hz"])
     phase = np.unwrap(np.angle(p ** 2)) / 2   # squaring removes the data: what is left is the carrier residual
     baseband = (p * np.exp(-1j * phase)).real
-    energy = [np.sum(np.abs(np.add.reduceat(baseband[o:], np.arange(0, baseband.size - o - 20, 20)))) for o in range(20)]
+    energy = [np.sum(np.abs(np.add.reduceat(baseband[o:], np.arange(0, baseband.size - o - 20, 20))))
+              for o in range(20)]
     edge = int(np.argmax(energy))
     bits = (np.add.reduceat(baseband[edge:], np.arange(0, baseband.size - edge - 20, 20)) < 0).astype(np.uint8)
     preamble = np.array([1, 0, 0, 0, 1, 0, 1, 1], dtype=np.uint8)
@@ -109,7 +112,8 @@ def test_attacker_peak_sits_at_its_truth_and_is_stronger(tmp_path):
         s = first_truth(rows, prn, "spoof")
         peak = cafs[prn].best
         dcode = (peak.code_phase_chips - s["code_phase_chips"] + 511.5) % 1023 - 511.5
-        assert abs(dcode) < 0.15, f"PRN {prn}: strongest peak at {peak.code_phase_chips:.2f}, spoofer at {s['code_phase_chips']:.2f}"
+        assert abs(dcode) < 0.15, \
+            f"PRN {prn}: strongest peak at {peak.code_phase_chips:.2f}, spoofer at {s['code_phase_chips']:.2f}"
         assert abs(peak.doppler_hz - s["doppler_hz"]) < 100
 
 
@@ -132,7 +136,9 @@ def test_seamless_takeover_starts_aligned_then_drifts(tmp_path):
     _, rows = simulate(tmp_path, "takeover", "attacker.enabled=true", 'attacker.mode="takeover"',
                        "attacker.push_hold_s=0.5", "attacker.push_speed_m_s=200.0", duration=2.0)
     prn = int(next(r["prn"] for r in rows if r["source"] == "spoof"))
-    at = lambda src, t: min((r for r in rows if r["prn"] == prn and r["source"] == src), key=lambda r: abs(r["t_rx_s"] - t))
+
+    def at(src, t):
+        return min((r for r in rows if r["prn"] == prn and r["source"] == src), key=lambda r: abs(r["t_rx_s"] - t))
     start_gap = abs(at("spoof", 0.0)["pseudorange_m"] - at("legit", 0.0)["pseudorange_m"])
     assert start_gap < 0.01, f"aligned start: {start_gap:.4f} m apart"
     assert abs(at("spoof", 0.0)["carrier_phase_cycles"] - at("legit", 0.0)["carrier_phase_cycles"]) < 1e-3
@@ -152,9 +158,9 @@ def test_meaconing_delays_every_prn_by_the_replay_delay(tmp_path):
 def test_time_push_delays_every_prn_alike_code_and_carrier_and_writes_its_truth(tmp_path):
     """Aligned with the sky at first, then every spoofed signal delayed by rate x (t - start - hold): the same delay on
     each PRN, in code and carrier alike; the receiver truth says the delay."""
-    out, rows = simulate(tmp_path, "tpush", "attacker.enabled=true", 'attacker.mode="time_push"', "attacker.start_s=0.2",
-                         "attacker.push_hold_s=0.3", "attacker.time_push_rate_s_s=1e-6", "attacker.time_push_ramp_s=0.0",
-                         duration=1.0)
+    out, rows = simulate(tmp_path, "tpush", "attacker.enabled=true", 'attacker.mode="time_push"',
+                         "attacker.start_s=0.2", "attacker.push_hold_s=0.3", "attacker.time_push_rate_s_s=1e-6",
+                         "attacker.time_push_ramp_s=0.0", duration=1.0)
     def gap(t, key):
         at = {(int(r["prn"]), r["source"]): r[key] for r in rows if abs(r["t_rx_s"] - t) < 1e-9}
         return np.array([at[(p, "spoof")] - at[(p, "legit")] for p, s in at if s == "spoof"])
@@ -162,18 +168,21 @@ def test_time_push_delays_every_prn_alike_code_and_carrier_and_writes_its_truth(
         code = gap(t, "pseudorange_m")
         assert np.allclose(code, SPEED_OF_LIGHT_M_S * delay_s, atol=0.05), (t, code)
         carrier_m = -gap(t, "carrier_phase_cycles") * 0.190293672798365
-        assert np.allclose(carrier_m, carrier_m[0]) and abs(carrier_m[0] - SPEED_OF_LIGHT_M_S * delay_s) < 0.2, carrier_m
+        assert (np.allclose(carrier_m, carrier_m[0])
+                and abs(carrier_m[0] - SPEED_OF_LIGHT_M_S * delay_s) < 0.2), carrier_m
     truth = list(csv.DictReader(open(truth_paths(out)["receiver.csv"])))
     claimed = {round(float(r["t_rx_s"]), 1): r["claimed_delay_s"] for r in truth}
     assert claimed[0.1] == "" and float(claimed[0.9]) == pytest.approx(0.4e-6, rel=1e-6)
-    events = [json.loads(l) for l in open(truth_paths(out)["events.jsonl"])]
-    assert [e["event"] for e in events] == ["attack_start", "drag_off_start"] and events[1]["time_push_rate_s_s"] == 1e-6
+    events = [json.loads(line) for line in open(truth_paths(out)["events.jsonl"])]
+    assert ([e["event"] for e in events] == ["attack_start", "drag_off_start"]
+            and events[1]["time_push_rate_s_s"] == 1e-6)
 
 
 def test_same_seed_same_bytes_other_seed_other_bytes(tmp_path):
     digest = []
     for i, seed in enumerate((5, 5, 6)):
-        out, _ = simulate(tmp_path, f"det{i}", f"signal.seed={seed}", "attacker.enabled=true", duration=0.05, fmt="ibyte")
+        out, _ = simulate(tmp_path, f"det{i}", f"signal.seed={seed}", "attacker.enabled=true", duration=0.05,
+                          fmt="ibyte")
         digest.append(hashlib.sha256(out.read_bytes()).hexdigest())
     assert digest[0] == digest[1] != digest[2]
 

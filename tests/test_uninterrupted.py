@@ -108,6 +108,7 @@ def test_whatever_escapes_a_command_is_one_line_and_its_exit_code():
     result = CliRunner().invoke(cli, ["boom"])
     assert result.exit_code == InternalError.exit_code == 70
     lines = result.output.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("semperfi: internal error: KeyError") and "Traceback" not in result.output
+    assert (len(lines) == 1 and lines[0].startswith("semperfi: internal error: KeyError")
+            and "Traceback" not in result.output)
     result = CliRunner().invoke(cli, ["refuse"])
     assert result.exit_code == 70 and result.output.strip() == "semperfi: error: said plainly"

@@ -131,7 +131,8 @@ def test_a_weaker_takeover_whose_guess_cancelled_the_legitimate_signals_is_swapp
     r = run_case(case, brdc_path, tmp_path, imu_csv=ins)
     print(r)
     events = [json.loads(line) for line in open(tmp_path / f"{case.tag}-full-imu" / "events.jsonl")]
-    refuted = {v["prn"] for e in events if e["event"] == "identification" for v in e["verdicts"] if not v["adversarial"]}
+    refuted = {v["prn"] for e in events if e["event"] == "identification"
+               for v in e["verdicts"] if not v["adversarial"]}
     recancelled = {e["prn"] for e in events if e["event"] == "cancellation_start" and not e["guessed"]}
     assert len(refuted) >= 5 and refuted <= recancelled, (refuted, recancelled)
     assert r["called_good_but_wrong"] == 0, r
@@ -178,7 +179,8 @@ def test_the_legitimate_symbols_retrieved_from_under_a_far_stronger_attacker_are
 
 
 METRICS = {"cell", "case", "crash", "error", "fixes", "first_fix_s", "clean_first_fix_s", "availability",
-           "longest_gap_s", "availability_after_verdict", "longest_gap_after_verdict_s", "last_mean_m", "max_m", "last_state", "good_fixes", "good_but_wrong", "good_beyond_hpl",
+           "longest_gap_s", "availability_after_verdict", "longest_gap_after_verdict_s", "last_mean_m", "max_m",
+           "last_state", "good_fixes", "good_but_wrong", "good_beyond_hpl",
            "good_beyond_vpl", "good_beyond_tpl", "time_err_max_ns", "time_err_last_ns", "alarm_s", "verdict_s",
            "recovered_s", "verdict_to_recovered_s", "wall_s"}
 

@@ -14,10 +14,10 @@ pytestmark = pytest.mark.skipif(gps_sdr_sim_path() is None,
 def test_a_time_push_aligned_from_the_first_sample_keeps_the_fix_from_the_clean_ttff(tmp_path, brdc_path):
     """GPS-SDR-SIM's scene itself at +10 dB, aligned in code and carrier from the first sample (stronger than any
     satellite: the power alarm at once, and its cancellation leaves nothing -- merged), then delayed at 25 ns/s from
-    20 s, after the first fix (the carrier steps by 39 Hz). The first fix comes at the clean TTFF, the loops hold the step, the push is a
-    clock alarm within a second, and from the clean TTFF on every epoch has a fix within 10 m not labelled
-    spoofing_detected (the position is the ranges', the time held on the clock model); no good fix beyond its
-    protection levels, time included."""
+    20 s, after the first fix (the carrier steps by 39 Hz). The first fix comes at the clean TTFF, the loops hold the
+    step, the push is a clock alarm within a second, and from the clean TTFF on every epoch has a fix within 10 m not
+    labelled spoofing_detected (the position is the ranges', the time held on the clock model); no good fix beyond
+    its protection levels, time included."""
     import json as _json
 
     from semperfi.eval.grid import Cell, run_cell

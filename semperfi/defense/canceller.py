@@ -141,7 +141,8 @@ class CancellerConfig:
 def refine_peak(samples: np.ndarray, fs_hz: float, if_hz: float, peak: Peak) -> Peak:
     """The adversarial peak on a narrow fine grid (25 Hz, 5 ms coherent), keeping to its own code phase."""
     grid = DopplerGrid(peak.doppler_hz, 300.0, 25.0)
-    caf = acquire(samples, fs_hz, [peak.prn], grid, if_hz, coherent_ms=5, noncoherent=2, pfa=1e-2, max_peaks=8)[peak.prn]
+    caf = acquire(samples, fs_hz, [peak.prn], grid, if_hz, coherent_ms=5, noncoherent=2, pfa=1e-2,
+                  max_peaks=8)[peak.prn]
     near = [p for p in caf.peaks if chips_apart(p.code_phase_chips, peak.code_phase_chips) < 0.6]
     return near[0] if near else peak
 
@@ -205,7 +206,8 @@ class AdversaryTrack:
         self.channel = Channel(prn, fs_hz, if_hz, st, loop)
         self._ref = 0j                 # smoothed complex amplitude (bit removed)
         self._legit_ref = 0j           # the same for a legitimate signal within a chip
-        self._legit_turn = 0.0         # its turn per period (rad) in the spoofer's carrier frame: they differ in Doppler
+        self._legit_turn = 0.0         # its turn per period (rad) in the spoofer's carrier frame:
+                                       # they differ in Doppler
         self._legit_est: np.ndarray | None = None   # its amplitude per code period of the last buffer
         self._twin_lag = 0.0           # and where it was, from the spoofer's replica
         self._lam = 1.0 / cfg.smoothing_ms
@@ -475,6 +477,7 @@ def caf_amplitude(samples: np.ndarray, fs_hz: float, if_hz: float, prn: int, cod
     k = int(round(fs_hz * 1e-3))
     x = samples[:k * n_blocks]
     peak = correlate_ms(x, fs_hz, prn, code_phase_chips, doppler_hz, if_hz)
-    off = np.concatenate([correlate_ms(x, fs_hz, prn, code_phase_chips + d, doppler_hz, if_hz) for d in (257.3, 511.7, 768.1)])
+    off = np.concatenate([correlate_ms(x, fs_hz, prn, code_phase_chips + d, doppler_hz, if_hz)
+                          for d in (257.3, 511.7, 768.1)])
     s_max, floor = float(np.mean(np.abs(peak) ** 2)), float(np.mean(np.abs(off) ** 2))
     return float(np.sqrt(max(s_max - floor, 0.0)) / k)

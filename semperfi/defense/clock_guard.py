@@ -14,11 +14,12 @@ pfa = 1e-7 per fix shared by the six predictions (10 fixes a second: one false a
 innovations were white and Gaussian). The bias's measurement sigma is the fix's clock sigma (the weighted least squares
 covariance with RAIM's sigma model, its floors included: some 7 ns where the epoch-to-epoch noise is 1-3 ns) with a
 2 ns floor; the drift's, 3 ns/s, three times what the simulator's clean static and flying (3.75 m/s^2) scenes show.
-On the clean static scene the latest prediction's statistic stays under 1 against a threshold of 36. Measured on synthetic fixes of those sizes
-(tests/test_clock.py): a 100 ns step alarms at the first fix; a 25 ns/s ramp at the first fix the Doppler sees it
-(derived bound with probability 0.99: 3.5 s), from the bias alone in 2 s (derived: 8.7 s); a push whose rate grows
-to 25 ns/s over 5 s in 4-5 s, at some 50 ns. What is seen goes into a `clock_alarm` event (step ns, ramp ns/s, their
-sigmas, how old the prediction was) through the spoof guard (SpoofGuard.clock_alarm).
+On the clean static scene the latest prediction's statistic stays under 1 against a threshold of 36. Measured on
+synthetic fixes of those sizes (tests/test_clock.py): a 100 ns step alarms at the first fix; a 25 ns/s ramp at the
+first fix the Doppler sees it (derived bound with probability 0.99: 3.5 s), from the bias alone in 2 s (derived:
+8.7 s); a push whose rate grows to 25 ns/s over 5 s in 4-5 s, at some 50 ns. What is seen goes into a `clock_alarm`
+event (step ns, ramp ns/s, their sigmas, how old the prediction was) through the spoof guard
+(SpoofGuard.clock_alarm).
 
 Time protection level (Fix.tpl_ns) of a fix whose time is checked (time_state nominal):
 
@@ -33,11 +34,11 @@ its TCXO; the defaults put that floor near a TCXO's (Allan deviation ~8e-10 at 1
 
 After a clock alarm the time is held on the model's prediction (time_state holdover), from the model as it was when
 the oldest prediction that disagrees was made (the updates since may carry part of the push): gps_tow_s, clock_bias_m
-and clock_drift_m_s are the prediction's, TPL = k_md sigma_pred(t) + pbias(2) sqrt(g' A g) + floor, growing as the TCXO's
-random walk says. Fixes whose ranges RAIM cannot vouch for get the same holdover time (their clock is no measurement).
-The time is taken back from the ranges (resynchronised) only when the defence has recovered (the fix's position state
-is `recovered`: every PRN in it resolved) and the measurements agree with the prediction for resync_s; what that
-acceptance may carry, pbias(dof) sqrt(S_bb) at that instant, stays in the floor from then on.
+and clock_drift_m_s are the prediction's, TPL = k_md sigma_pred(t) + pbias(2) sqrt(g' A g) + floor, growing as the
+TCXO's random walk says. Fixes whose ranges RAIM cannot vouch for get the same holdover time (their clock is no
+measurement). The time is taken back from the ranges (resynchronised) only when the defence has recovered (the fix's
+position state is `recovered`: every PRN in it resolved) and the measurements agree with the prediction for resync_s;
+what that acceptance may carry, pbias(dof) sqrt(S_bb) at that instant, stays in the floor from then on.
 
 Why a separate time_state, not the position's state, and not a spoofing alarm on the guard's alarm_t_s: a common delay
 does not move the position -- the ranges still give it, and RAIM still checks it -- so the position keeps its state

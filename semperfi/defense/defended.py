@@ -297,14 +297,14 @@ class DefendedReceiver:
         else unverified (they disagree, or there are too few to check). After an alarm it is spoofing_detected
         (detect only, or a PRN in it neither resolved nor under cancellation nor found merged with its legitimate
         twin -- the attacker's signal aligned with it, under the examination's watch for the two to part: its range
-        may still be the attacker's anywhere), then recovering until every PRN it uses is resolved (verified clean after cancellation, or
-        examined and found to hold one signal) and its ranges pass the integrity test with redundancy to spare: a
-        mix of legitimate and spoofed ranges, or a fix that cannot be checked, is never recovered. A PRN whose
-        cancelled peak was chosen by assumption (the stronger one, with no earlier lock or maneuver to say so) is not
-        resolved: the attacker sets its own power, and if the assumption is wrong the legitimate signal is the one
-        cancelled and the range left is the attacker's -- when every PRN is so, consistent with the others, and
-        wrong. A fix that would be recovered but times a range by its spoofer's navigation message (the rectifier) is
-        rectified."""
+        may still be the attacker's anywhere), then recovering until every PRN it uses is resolved (verified clean
+        after cancellation, or examined and found to hold one signal) and its ranges pass the integrity test with
+        redundancy to spare: a mix of legitimate and spoofed ranges, or a fix that cannot be checked, is never
+        recovered. A PRN whose cancelled peak was chosen by assumption (the stronger one, with no earlier lock or
+        maneuver to say so) is not resolved: the attacker sets its own power, and if the assumption is wrong the
+        legitimate signal is the one cancelled and the range left is the attacker's -- when every PRN is so,
+        consistent with the others, and wrong. A fix that would be recovered but times a range by its spoofer's
+        navigation message (the rectifier) is rectified."""
         g = self.guard
         rectified = set(fix.prns) & self.inner.rectified_prns
         self._note_rectified(rectified, fix.t_rx_s)

@@ -64,7 +64,8 @@ class PeakPair:
             return {"code_phase_chips": round(p.code_phase_chips, 4), "doppler_hz": round(p.doppler_hz, 1),
                     "metric": round(p.metric, 2), "cn0_dbhz": round(p.cn0_dbhz, 1)}
         return {"prn": self.prn, "main": peak(self.main), "auxiliary": peak(self.auxiliary),
-                "separation_chips": round(self.separation_chips, 3), "separation_ns": round(self.separation_chips / CA_CHIP_RATE_HZ * 1e9, 1),
+                "separation_chips": round(self.separation_chips, 3),
+                "separation_ns": round(self.separation_chips / CA_CHIP_RATE_HZ * 1e9, 1),
                 "found_by": self.source}
 
 
@@ -100,7 +101,8 @@ def is_cross_talk(peak: Peak, caf: Caf, cafs: dict[int, Caf], cfg: DetectorConfi
 
     The cross-correlation of two C/A codes at given code phases and Dopplers is deterministic: it is computed for
     each stronger signal present, their powers summed and compared with the peak's (a peak that they explain for
-    CROSS_TALK_SHARE or more is cross-talk). Strong peaks are never cross-talk: cross-correlation lies 21 dB down or more.
+    CROSS_TALK_SHARE or more is cross-talk). Strong peaks are never cross-talk: cross-correlation lies 21 dB down or
+    more.
 
     block_s: the correlation's coherent length when it is not the CAF's -- the two-path fit takes each 1 ms block's
     amplitude apart, so a stronger signal 100 Hz away, which a 40 ms coherent sum averages out, still leaks into

@@ -451,7 +451,8 @@ class SpoofGuard:
         if cancelled_is_attacker:
             self.guessed.discard(prn)
         elif self.swapped.get(prn, 0) >= MAX_SWAPS:
-            self.gave_up[prn] = "the cancelled peak continues the ranges of the last nominal fix: it is the legitimate one"
+            self.gave_up[prn] = ("the cancelled peak continues the ranges of the last nominal fix: "
+                                 "it is the legitimate one")
         else:
             self.swapped[prn] = self.swapped.get(prn, 0) + 1
             self._release(prn)
@@ -519,7 +520,8 @@ class SpoofGuard:
                    for tr, spoofer_chips in self.spoofers_at(prn, sample))
 
     def spoofers_at(self, prn: int, sample: float):
-        """(track, the cancelled spoofer's code phase) at an absolute sample, for each of a PRN's tracks that holds it."""
+        """(track, the cancelled spoofer's code phase) at an absolute sample, for each of a PRN's tracks that
+        holds it."""
         for st in self.canceller.stages:
             tr = st.tracks.get(prn)
             spoofer_chips = tr.channel.code_phase_at(sample) if tr is not None else None

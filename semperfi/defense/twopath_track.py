@@ -194,7 +194,8 @@ def fit_two_paths_reference(prn: int, y: np.ndarray, lags: np.ndarray, us: np.nd
         for v in vs:
             if side * (v - u) < MIN_SEPARATION_CHIPS:
                 continue
-            a = np.column_stack([code_correlation(prn, lags - u), code_correlation(prn, lags - v)]).astype(np.complex128)
+            a = np.column_stack([code_correlation(prn, lags - u),
+                                 code_correlation(prn, lags - v)]).astype(np.complex128)
             coef = np.linalg.lstsq(a, y.T, rcond=None)[0]
             cost = float(np.sum(np.abs(y.T - a @ coef) ** 2))
             if cost < best:

@@ -177,7 +177,8 @@ def _attack_words(a: dict) -> str:
     where = (f"drags the fix off at {a['push_speed_m_s']:g} m/s after {a['push_hold_s']:g} s aligned"
              if a["mode"] in ("push", "takeover") else
              f"claims {math.hypot(a['offset_east_m'], a['offset_north_m']):g} m away" if a["mode"] == "static" else
-             "delays every signal alike" if a["mode"] == "time_push" else f"replays the sky {a['delay_s'] * 1e6:g} us late")
+             "delays every signal alike" if a["mode"] == "time_push" else
+             f"replays the sky {a['delay_s'] * 1e6:g} us late")
     return f"{a['mode']}, {a['power_advantage_db']:+g} dB, {where}, every PRN in view"
 
 
@@ -246,8 +247,8 @@ def run_autopilot_loop(out_dir: str | Path, binary: str | Path, speedup: float =
         log(f"autopilot: ArduCopter SITL instance {instance}, x{speedup:g}, home {r['lat_deg']:.5f} {r['lon_deg']:.5f}")
         companion = subprocess.Popen(me + ["companion", "--port", str(link_port), "--link-key", str(key_path),
                                            "--vehicle", sitl.url(1)],
-                                     stdout=subprocess.PIPE, stderr=logs.enter_context(open(out / "companion.err", "w")),
-                                     text=True)
+                                     stdout=subprocess.PIPE,
+                                     stderr=logs.enter_context(open(out / "companion.err", "w")), text=True)
         procs.append(companion)
         if companion.stdout.readline().find('"listening"') < 0:
             raise RuntimeError("the flight side did not start (companion.err says why)")
@@ -289,7 +290,8 @@ def run_autopilot_loop(out_dir: str | Path, binary: str | Path, speedup: float =
               120.0 / speedup + 60, world, 0.2)
         result.phases["verdict"] = world.tau_s
         failed = _first(flight, "maneuver_failed")
-        log(f"{world.tau_s:6.1f} s  the maneuver is " + (f"aborted: {failed['error']}" if failed else "flown and judged")
+        log(f"{world.tau_s:6.1f} s  the maneuver is "
+            + (f"aborted: {failed['error']}" if failed else "flown and judged")
             + "; the vehicle is sent back to its hover point")
         time.sleep(2.0 / speedup)   # the flight side hands the vehicle back in the mode it found it in
         obs.set_mode(GUIDED)

@@ -76,7 +76,8 @@ class ClosedLoop:
         for r, tk in zip(rows, t):
             la, lo, hh = (np.interp(tk, t_truth, a) for a in (lat, lon, h))
             truth = geodetic_to_ecef(np.radians(la), np.radians(lo), hh)
-            enu = enu_rotation(np.radians(la), np.radians(lo)) @ (np.array([float(r[k]) for k in ("x_m", "y_m", "z_m")]) - truth)
+            enu = enu_rotation(np.radians(la), np.radians(lo)) @ (
+                np.array([float(r[k]) for k in ("x_m", "y_m", "z_m")]) - truth)
             errors.append(np.hypot(enu[0], enu[1]))
         return t, np.array(errors)
 

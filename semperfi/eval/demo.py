@@ -84,8 +84,8 @@ def run_demo(out_dir: str | Path, duration_s: float, sets: list[str], progress: 
     cfg = load_scenario(None, CLOSED_LOOP_SETTINGS + [f"time.duration_s={duration_s}"] + sets)
     r = cfg["receiver"]
     yield (f"closed loop, {duration_s:g} s at {cfg['signal']['fs_hz'] / 1e6:g} MSa/s: vehicle hovering at "
-           f"{r['lat_deg']:.4f}, {r['lon_deg']:.4f}; {_attacker_line(cfg['attacker'])}; world, receiver and flight side "
-           "in three processes (pipe, authenticated link, MAVLink)")
+           f"{r['lat_deg']:.4f}, {r['lon_deg']:.4f}; {_attacker_line(cfg['attacker'])}; "
+           "world, receiver and flight side in three processes (pipe, authenticated link, MAVLink)")
     loop = run_closed_loop(out_dir, duration_s, sets, tee=True, show=progress)
     for error in loop.errors:
         yield f"error: {error}"
@@ -98,8 +98,9 @@ def run_demo(out_dir: str | Path, duration_s: float, sets: list[str], progress: 
         yield (f"flight side: asked at t = {asked['payload']['t_s']:.1f} s (on the alarm, once the receiver had a "
                f"fix); maneuver of "
                f"{drawn['legs']} legs drawn from the OS's cryptographic source, flown over MAVLink in GUIDED from "
-               f"t = {done['start_s']:.1f} to {done['end_s']:.1f} s: {drawn['duration_s']:.1f} s, {drawn['path_m']:.1f} m "
-               f"flown, ending {drawn['end_distance_m']:.1f} m from its start (paper: 10-20 s, under 50 m)")
+               f"t = {done['start_s']:.1f} to {done['end_s']:.1f} s: {drawn['duration_s']:.1f} s, "
+               f"{drawn['path_m']:.1f} m flown, ending {drawn['end_distance_m']:.1f} m from its start "
+               f"(paper: 10-20 s, under 50 m)")
     verdict = loop.first("verdict", "flight")
     if verdict:
         peaks = verdict["payload"]["peaks"]
@@ -115,7 +116,8 @@ def run_demo(out_dir: str | Path, duration_s: float, sets: list[str], progress: 
     else:
         t_r, err_r = loop.fix_errors_m("recovering")
         yield ("SemperFi: no recovered fix yet" + (f"; {len(t_r)} fixes still recovering (a cancellation not yet "
-               f"verified), {np.mean(err_r):.1f} m from the truth" if len(t_r) else "") + " (run longer: --duration 100)")
+               f"verified), {np.mean(err_r):.1f} m from the truth" if len(t_r) else "")
+               + " (run longer: --duration 100)")
     beyond = sum(int(np.sum(loop.fix_errors_m(s)[1] > loop.fix_levels_m(s))) for s in TRUSTED_STATES)
     far = sum(int(np.sum(loop.fix_errors_m(s)[1] > 10.0)) for s in TRUSTED_STATES)
     yield (f"fixes labelled good (nominal, recovered, rectified) beyond their horizontal protection level: {beyond}; "

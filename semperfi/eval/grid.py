@@ -151,7 +151,8 @@ COLUMNS = (("crash", "crash"), ("clean 1st fix", "clean_first_fix_s"), ("1st fix
            ("time err last 10 s", "time_err_last_ns"),
            ("alarm", "alarm_s"), ("verdict", "verdict_s"), ("recovered", "recovered_s"),
            ("to recovered", "verdict_to_recovered_s"), ("last state", "last_state"), ("wall", "wall_s"))
-UNITS = {"clean_first_fix_s": " s", "first_fix_s": " s", "longest_gap_s": " s", "longest_gap_after_verdict_s": " s", "last_mean_m": " m", "max_m": " m",
+UNITS = {"clean_first_fix_s": " s", "first_fix_s": " s", "longest_gap_s": " s", "longest_gap_after_verdict_s": " s",
+         "last_mean_m": " m", "max_m": " m",
          "time_err_max_ns": " ns", "time_err_last_ns": " ns", "alarm_s": " s", "verdict_s": " s",
          "recovered_s": " s", "verdict_to_recovered_s": " s", "wall_s": " s"}
 

@@ -183,7 +183,8 @@ def run_metrics(fixes_csv: str | Path, events_jsonl: str | Path, truth: Truth, d
     # what the issue holds a defended receiver to: from the verdict on (before it, which peak is whose is unknown)
     after_verdict = availability(t, (horiz <= bad_m) & (states != "spoofing_detected"), max(start, verdict), end) \
         if verdict is not None else (None, None)
-    out |= {"availability_after_verdict": _r(after_verdict[0], 4), "longest_gap_after_verdict_s": _r(after_verdict[1], 1)}
+    out |= {"availability_after_verdict": _r(after_verdict[0], 4),
+            "longest_gap_after_verdict_s": _r(after_verdict[1], 1)}
     anchor = verdict if verdict is not None else alarm
     recovered = None
     if anchor is not None:

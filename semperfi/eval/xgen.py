@@ -41,7 +41,8 @@ OUTPUT_SCALE = 0.5          # headroom in int16 for a +20 dB spoofer on a dozen 
 RECEIVER_SETTINGS = ("pvt.troposphere=false",)
 MIX_BLOCK_S = 1.0
 F_L1_HZ = 1575.42e6
-DELAY_SUB_BLOCK_S = 1e-3     # the time push's delay is held per sub-block (25 ns/s: 25 ps); its carrier turns per sample
+DELAY_SUB_BLOCK_S = 1e-3     # the time push's delay is held per sub-block (25 ns/s: 25 ps);
+                             # its carrier turns per sample
 SINC_HALF_TAPS = 16          # the fractional-delay interpolator: a Kaiser-windowed sinc, 2 x 16 taps
 SINC_KAISER_BETA = 8.0
 

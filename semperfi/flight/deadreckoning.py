@@ -40,7 +40,8 @@ def _rodrigues(phi: np.ndarray) -> np.ndarray:
 class HoverBias:
     gyro_bias_rps: np.ndarray              # body frame: subtract from the gyro (at the track's start)
     accel_residual_ned_mps2: np.ndarray    # navigation frame: subtract from the integrated acceleration
-    gyro_drift_rps2: np.ndarray = field(default_factory=lambda: np.zeros(3))   # how the gyro's bias changes with time from the start
+    # how the gyro's bias changes with time from the start
+    gyro_drift_rps2: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
 
 def bias_between(before: HoverBias, after: HoverBias, before_t_s: float, after_t_s: float,

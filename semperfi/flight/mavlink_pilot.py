@@ -120,7 +120,8 @@ class Pilot:
                 continue
             if self.target is not None and (msg.get_srcSystem() != self.target[0] or (
                     msg.get_type() == "HEARTBEAT" and msg.get_srcComponent() != self.target[1])):
-                continue   # another system on the link (a ground station), or a camera's HEARTBEAT, is not the autopilot
+                # another system on the link (a ground station), or a camera's HEARTBEAT, is not the autopilot
+                continue
             try:
                 imu = self.tm.update(msg, time.monotonic())
             except TelemetryError as exc:
@@ -231,7 +232,8 @@ class Pilot:
         result = self.command(mav.MAV_CMD_DO_SET_MODE, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, custom_mode)
         if result != mav.MAV_RESULT_ACCEPTED:
             raise PilotError(f"vehicle refused mode {custom_mode} (MAV_RESULT {result})")
-        self._wait_for({"HEARTBEAT"}, f"HEARTBEAT in mode {custom_mode}", accept=lambda hb: hb.custom_mode == custom_mode)
+        self._wait_for({"HEARTBEAT"}, f"HEARTBEAT in mode {custom_mode}",
+                       accept=lambda hb: hb.custom_mode == custom_mode)
 
     # -- flying ------------------------------------------------------------------------------------------------
     def fly(self, maneuver: Maneuver) -> FlownManeuver:

@@ -7,10 +7,11 @@ ends (MAX2769-class) write them: `real2`/`iq2` are GNSS-SDR's Two_Bit_Packed_Fil
 value v -> 2v+1, i.e. -3 -1 1 3; the first value in the byte's lowest bits), `real2sm`/`iq2sm` sign-magnitude (sign
 bit then magnitude bit, 1 = negative; -> +-1, +-3; the first value in the highest bits, the order a serial
 sign/magnitude interface shifts them in), `real4`/`iq4` 4-bit two's complement nibbles (v -> 2v+1, high nibble
-first; a complex sample is one byte, I in the high nibble). Decoding gives complex64 with the raw values (no normalisation, as
-GNSS-SDR does; unsigned integers are centred on their mid-scale, as rtl_sdr's uint8 are). A real sample decodes to
-x + 0j at its IF: correlating it with a complex carrier at +IF picks the upper of its two spectral images, as
-SoftGNSS does, so the chain needs no other change (the image at -IF is 2 IF away from any Doppler searched).
+first; a complex sample is one byte, I in the high nibble). Decoding gives complex64 with the raw values (no
+normalisation, as GNSS-SDR does; unsigned integers are centred on their mid-scale, as rtl_sdr's uint8 are). A real
+sample decodes to x + 0j at its IF: correlating it with a complex carrier at +IF picks the upper of its two spectral
+images, as SoftGNSS does, so the chain needs no other change (the image at -IF is 2 IF away from any Doppler
+searched).
 """
 
 from __future__ import annotations

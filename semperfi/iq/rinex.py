@@ -93,7 +93,8 @@ def read_rinex_nav(path: str | Path) -> NavData:
         import georinex
         nav = georinex.load(path, use="G")
     except Exception as exc:   # a garbled file can fail anywhere inside the parser
-        raise ValueError(f"{path}: not a readable RINEX GPS navigation file ({type(exc).__name__}: {exc})"[:300]) from None
+        raise ValueError(
+            f"{path}: not a readable RINEX GPS navigation file ({type(exc).__name__}: {exc})"[:300]) from None
     if nav is None or "sv" not in getattr(nav, "coords", {}) or "sqrtA" not in nav:
         raise ValueError(f"{path}: no GPS navigation records")
     # plain arrays (time x sv): indexing the xarray dataset record by record costs seconds per file

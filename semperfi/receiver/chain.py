@@ -26,7 +26,8 @@ EPHEMERIS_AGREE_M = 5.0      # two uploads' ephemerides agree to about a metre; 
 TYPICAL_FLIGHT_S = 0.075       # first guess of the signals' travel time, to start the receiver clock
 # Klobuchar coefficients to use until subframe 4 page 18 (broadcast every 12.5 min) has been decoded: RTKLIB's
 # defaults, a typical set; far better than no ionosphere model at all.
-FALLBACK_IONO = IonoParams((0.1118e-07, -0.7451e-08, -0.5961e-07, 0.1192e-06), (0.1167e+06, -0.2294e+06, -0.1311e+06, 0.1049e+07))
+FALLBACK_IONO = IonoParams((0.1118e-07, -0.7451e-08, -0.5961e-07, 0.1192e-06),
+                           (0.1167e+06, -0.2294e+06, -0.1311e+06, 0.1049e+07))
 
 
 WARM_RETRY_S = 0.5    # how soon a PRN lost moments ago is searched again (its carried time lasts DONOR_REACH_S)

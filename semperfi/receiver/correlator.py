@@ -22,7 +22,8 @@ from ..gps.constants import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS
 
 QUANTUM_CHIPS = 1e-3        # replica phases are within this (0.3 m) of the true code, dithered as the code moves:
                             # far below the DLL's noise (5e-4 gave the same fixes, for a bank twice as big)
-BANK_MARGIN_CHIPS = 4.0     # code wrapped on each side: more than early/late and the canceller's probes (1.5 chips) reach
+BANK_MARGIN_CHIPS = 4.0     # code wrapped on each side: more than early/late and the canceller's probes
+                            # (1.5 chips) reach
 MAX_SUB_SAMPLES = 1024      # longest sub-block (the lane phasors' length)
 LANE_GROUP = 16
 
@@ -164,5 +165,7 @@ def correlate_block_reference(x, code, code_phase_chips, code_step_chips, carrie
     k = np.arange(x.size)
     pos = code_phase_chips + k * code_step_chips
     wiped = x * np.exp(-2j * np.pi * (carrier_phase_cycles + k * carrier_step_cycles))
-    chip = lambda offset: code[np.floor(pos + offset).astype(np.int64) % CA_CODE_LENGTH_CHIPS]
+
+    def chip(offset):
+        return code[np.floor(pos + offset).astype(np.int64) % CA_CODE_LENGTH_CHIPS]
     return tuple(complex(np.sum(wiped * chip(o))) for o in (half_spacing_chips, 0.0, -half_spacing_chips))

@@ -43,8 +43,9 @@ class Pacer:
 
 class FixStream:
     """`update(fix)` with every fix; a thread hands the next one (in order, each once; the last again when none is
-    new; None once it is STALE_S old, or before the first) to send(fix, unix_time_s) every 1/rate_hz until `close()`. clock() is the monotonic clock and
-    wall() the UNIX time (injectable for tests, which call step() themselves with start=False)."""
+    new; None once it is STALE_S old, or before the first) to send(fix, unix_time_s) every 1/rate_hz until `close()`.
+    clock() is the monotonic clock and wall() the UNIX time (injectable for tests, which call step() themselves with
+    start=False)."""
 
     def __init__(self, send, rate_hz: float = RATE_HZ, clock=time.monotonic, wall=time.time, start: bool = True):
         self._send, self._clock, self._wall = send, clock, wall

@@ -6,10 +6,10 @@ recovered, rectified) whose ranges pass the integrity test, so within its protec
 fix's fault-free 1 sigma (from the same weighted least squares the protection levels come from): an autopilot reads
 hAcc as 1 sigma -- ArduPilot's EKF weighs each fix by it and will not set its origin or arm while it exceeds 5 m --
 and a protection level (a bound on one faulty range's effect, several sigma) there left ArduCopter "waiting for
-home" for good on a clean sky (measured on SITL: HPL 14.7 m). While spoofing is suspected and not resolved (spoofing_detected,
-recovering) or the fix is otherwise unverified, it gets NO_FIX: a degraded 3D fix with large accuracies would still
-be fused and pull the EKF toward the attacker's position, while no fix makes the autopilot's own failsafes and dead
-reckoning take over. The moment a fix is recovered it gets the true position again.
+home" for good on a clean sky (measured on SITL: HPL 14.7 m). While spoofing is suspected and not resolved
+(spoofing_detected, recovering) or the fix is otherwise unverified, it gets NO_FIX: a degraded 3D fix with large
+accuracies would still be fused and pull the EKF toward the attacker's position, while no fix makes the autopilot's
+own failsafes and dead reckoning take over. The moment a fix is recovered it gets the true position again.
 """
 
 from __future__ import annotations

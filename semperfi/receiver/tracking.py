@@ -51,7 +51,7 @@ def loop_params(fs_hz: float, if_hz: float, cfg: LoopConfig, pull_in: bool, narr
 
 
 @njit(cache=True, nogil=True)
-def loop_update(st, prm, e, p, l):
+def loop_update(st, prm, e, p, late):
     """Discriminators and loop filters after one code period; updates the NCOs in st."""
     t = prm[T_INT]
     i, q = p.real, p.imag
@@ -66,7 +66,7 @@ def loop_update(st, prm, e, p, l):
     wn, wf = prm[PLL_WN], prm[FLL_WN]
     st[FREQ_STATE] += t * (wn * wn * e_pll + wf * e_fll)
     st[CARR_FREQ] = st[FREQ_STATE] + 1.414 * wn * e_pll
-    ae, al = abs(e), abs(l)
+    ae, al = abs(e), abs(late)
     e_code = (ae - al) / (ae + al) * (1.0 - prm[HALF_SPACING]) if ae + al > 0.0 else 0.0   # chips
     st[CODE_RATE] = CA_CHIP_RATE_HZ * (1.0 + st[CARR_FREQ] / L1_HZ) + prm[DLL_K] * e_code
 
@@ -93,9 +93,9 @@ def track_kernel(x, base_sample, st, prm, rows, first, bank_step, lanes, out_e, 
         if offset + n > x.size:
             break
         carr_step = (prm[IF] + st[CARR_FREQ]) / fs
-        e, p, l = correlate_block(x, offset, n, rows, first, bank_step, cp, step, st[CARR_PHASE], carr_step,
+        e, p, late = correlate_block(x, offset, n, rows, first, bank_step, cp, step, st[CARR_PHASE], carr_step,
                                   prm[HALF_SPACING], lanes)
-        out_e[m], out_p[m], out_l[m] = e, p, l
+        out_e[m], out_p[m], out_l[m] = e, p, late
         out_epoch[m] = st[NEXT_SAMPLE] - cp / step
         out_doppler[m] = st[CARR_FREQ]
         out_carr[m] = st[CARR_TOTAL]
@@ -106,7 +106,7 @@ def track_kernel(x, base_sample, st, prm, rows, first, bank_step, lanes, out_e, 
         st[CARR_TOTAL] += n * st[CARR_FREQ] / fs
         st[CODE_PHASE] = cp + n * step - CA_CODE_LENGTH_CHIPS
         st[NEXT_SAMPLE] += n
-        loop_update(st, prm, e, p, l)
+        loop_update(st, prm, e, p, late)
         m += 1
     return m
 
@@ -123,14 +123,14 @@ def track_reference(x, base_sample, st, prm, code, max_periods):
         if offset < 0 or offset + n > x.size:
             break
         carr_step = (prm[IF] + st[CARR_FREQ]) / fs
-        e, p, l = correlate_block_reference(x[offset:offset + n], code, cp, step, st[CARR_PHASE], carr_step,
+        e, p, late = correlate_block_reference(x[offset:offset + n], code, cp, step, st[CARR_PHASE], carr_step,
                                             prm[HALF_SPACING])
-        out.append((e, p, l, st[NEXT_SAMPLE] - cp / step))
+        out.append((e, p, late, st[NEXT_SAMPLE] - cp / step))
         st[CARR_PHASE] = (st[CARR_PHASE] + n * carr_step) % 1.0
         st[CARR_TOTAL] += n * st[CARR_FREQ] / fs
         st[CODE_PHASE] = cp + n * step - CA_CODE_LENGTH_CHIPS
         st[NEXT_SAMPLE] += n
-        loop_update(st, prm, e, p, l)
+        loop_update(st, prm, e, p, late)
     return out
 
 

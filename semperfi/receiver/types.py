@@ -47,7 +47,8 @@ class Fix:
     hdop: float
     vdop: float
     residual_rms_m: float
-    state: str = "nominal"    # nominal | unverified; the defence's: spoofing_detected | recovering | recovered | rectified
+    # nominal | unverified; the defence's: spoofing_detected | recovering | recovered | rectified
+    state: str = "nominal"
     raim: str = "unverifiable"  # pass | fail | excluded | unverifiable (integrity.py); only pass/excluded are trusted
     excluded_prns: tuple[int, ...] = ()   # ranges RAIM excluded from this fix
     test_statistic: float = float("nan")  # weighted residual sum of squares (chi-square distributed when clean)

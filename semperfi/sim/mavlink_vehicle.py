@@ -62,7 +62,8 @@ class MavlinkVehicle:
         self.peer = None   # where telemetry goes: the last address that sent valid MAVLink
         self.mav = mav.MAVLink(self, srcSystem=1, srcComponent=1)
         self.origin = origin
-        self.vehicle = Multicopter(seed, heading_rad, params, imu, pos_ned_m=(0.0, 0.0, -altitude_m if airborne else 0.0))
+        self.vehicle = Multicopter(seed, heading_rad, params, imu,
+                                   pos_ned_m=(0.0, 0.0, -altitude_m if airborne else 0.0))
         self.time_scale = float(time_scale)
         self.mode = MODES["LOITER"] if airborne else MODES["STABILIZE"]
         self.armed = airborne
@@ -187,7 +188,8 @@ class MavlinkVehicle:
         if msg.command == mav.MAV_CMD_DO_SET_MODE:
             ok = math.isfinite(msg.param2) and msg.param2 == int(msg.param2) and self._set_mode(int(msg.param2))
         elif msg.command == mav.MAV_CMD_COMPONENT_ARM_DISARM:
-            ok = msg.param1 in (0.0, 1.0) and (msg.param1 == 1.0 or self.vehicle.pos_ned_m[2] > -0.5)   # no disarm aloft
+            # no disarm aloft
+            ok = msg.param1 in (0.0, 1.0) and (msg.param1 == 1.0 or self.vehicle.pos_ned_m[2] > -0.5)
             self.armed = self.armed if not ok else msg.param1 == 1.0
         elif msg.command == mav.MAV_CMD_SET_MESSAGE_INTERVAL:
             ok = self._interval(msg.param1, msg.param2)

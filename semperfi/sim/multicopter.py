@@ -146,8 +146,10 @@ class Multicopter:
         self.vel_ned_mps = np.zeros(3)
         self.accel_ned_mps2 = np.zeros(3)
         self.rates_body_rps = np.zeros(3)
-        accel = self.c_nb.T @ -GRAVITY_NED_MPS2 + self._a_bias + rng.normal(0, imu.accel_noise_mps2_rthz / np.sqrt(dt_s), 3)
-        gyro = self._g_bias + imu.gyro_drift_rps_per_s * self.t_s + rng.normal(0, imu.gyro_noise_rps_rthz / np.sqrt(dt_s), 3)
+        accel = (self.c_nb.T @ -GRAVITY_NED_MPS2 + self._a_bias
+                 + rng.normal(0, imu.accel_noise_mps2_rthz / np.sqrt(dt_s), 3))
+        gyro = (self._g_bias + imu.gyro_drift_rps_per_s * self.t_s
+                + rng.normal(0, imu.gyro_noise_rps_rthz / np.sqrt(dt_s), 3))
         return accel, gyro
 
     def _turn(self, yaw_rad: float | None, dt_s: float) -> None:

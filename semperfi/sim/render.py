@@ -10,7 +10,8 @@ from numba import njit
 from ..gps.constants import CA_CODE_LENGTH_CHIPS, CHIPS_PER_BIT
 
 CARRIER_TABLE_BITS = 12
-CARRIER_TABLE = np.exp(2j * np.pi * (np.arange(1 << CARRIER_TABLE_BITS) + 0.5) / (1 << CARRIER_TABLE_BITS)).astype(np.complex64)
+CARRIER_TABLE = np.exp(2j * np.pi * (np.arange(1 << CARRIER_TABLE_BITS) + 0.5)
+                       / (1 << CARRIER_TABLE_BITS)).astype(np.complex64)
 
 
 @njit(cache=True, nogil=True)

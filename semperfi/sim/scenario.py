@@ -110,7 +110,8 @@ def check(cfg: dict) -> None:
     need(a["mode"] in ("static", "push", "takeover", "meaconing", "time_push"), f"attacker.mode = '{a['mode']}'")
     need(0 <= a["time_push_rate_s_s"] <= 1e-5, "attacker.time_push_rate_s_s must lie in [0, 1e-5] s/s")
     need(a["time_push_ramp_s"] >= 0, "attacker.time_push_ramp_s must not be negative")
-    need(-3 <= a["power_advantage_db"] <= 20, f"attacker.power_advantage_db = {a['power_advantage_db']:g} (-3 to +20 dB)")
+    need(-3 <= a["power_advantage_db"] <= 20,
+         f"attacker.power_advantage_db = {a['power_advantage_db']:g} (-3 to +20 dB)")
     need(all(isinstance(p, int) and 1 <= p <= 32 for p in a["prns"]), "attacker.prns are PRNs 1-32")
     need(a["start_s"] >= 0, "attacker.start_s must not be negative")
     need(a["push_speed_m_s"] >= 0 and a["max_offset_m"] >= 0, "attacker push speed and max offset must not be negative")
@@ -119,5 +120,6 @@ def check(cfg: dict) -> None:
     need(a["nav_data"] in ("same", "altered"), "attacker.nav_data is same or altered")
     need(1 <= a["copies"] <= 10 and a["copy_spacing_s"] >= 0, "attacker.copies must lie in 1..10")
     m = cfg["multipath"]
-    need(0 < m["delay_chips"] < 1023 and m["relative_power_db"] <= 0, "multipath: delay in (0, 1023) chips, power <= 0 dB")
+    need(0 < m["delay_chips"] < 1023 and m["relative_power_db"] <= 0,
+         "multipath: delay in (0, 1023) chips, power <= 0 dB")
     need(cfg["output"]["truth_rate_hz"] > 0, "output.truth_rate_hz must be positive")

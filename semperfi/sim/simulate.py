@@ -101,7 +101,8 @@ class Simulator:
         arr = arrival(stack_ephemerides(eph[p] for p in prns), pos_ecef_m, np.zeros(3), self.t0.tow_s, None, False)
         mask = np.radians(self.cfg["constellation"]["elevation_mask_deg"])
         order = np.argsort(-arr.elevation_rad)
-        return sorted(prns[i] for i in order if arr.elevation_rad[i] > mask)[:self.cfg["constellation"]["max_satellites"]]
+        return sorted(prns[i] for i in order
+                      if arr.elevation_rad[i] > mask)[:self.cfg["constellation"]["max_satellites"]]
 
     def _choose_signals(self) -> list[_Signal]:
         c = self.constellation
@@ -154,7 +155,8 @@ class Simulator:
         if self.attack:
             delay = self.attack.delay_s(tau_s)
             claimed = self.attack.claimed_position(tau_s - delay, pos, self.start_pos)
-            spoof = arrival(self._stack, claimed, vel if self.attack.mode in ("push", "takeover", "time_push") else np.zeros(3),
+            spoof = arrival(self._stack, claimed,
+                            vel if self.attack.mode in ("push", "takeover", "time_push") else np.zeros(3),
                             t_gps.tow_s - delay, self.iono, self.cfg["constellation"]["troposphere"])
             is_spoof = np.array([s.source == "spoof" for s in self.signals])
             code_m[is_spoof] = spoof.code_m[is_spoof] + SPEED_OF_LIGHT_M_S * delay
@@ -210,7 +212,8 @@ class Simulator:
             tau0, tau1 = k0 / fs, (k0 + n) / fs
             code1, carr1, el1, truth1 = self._pseudoranges(tau1)
             cn0 = self._cn0_dbhz(tau0, el0)
-            amplitude = np.where(np.isfinite(cn0), amp_per_sqrt_hz * 10.0 ** (np.where(np.isfinite(cn0), cn0, 0) / 20), 0.0)
+            amplitude = np.where(np.isfinite(cn0),
+                                 amp_per_sqrt_hz * 10.0 ** (np.where(np.isfinite(cn0), cn0, 0) / 20), 0.0)
             chips_a, chips_b = self._chips(tau0, code0), self._chips(tau1, code1)
             ph_a, ph_b = self._phase_cycles(tau0, carr0), self._phase_cycles(tau1, carr1)
             first_bits = np.floor(chips_a / CHIPS_PER_BIT).astype(np.int64)
@@ -235,7 +238,8 @@ class Simulator:
     def _attack_events(self, tau_s: float, announced: set, on_event) -> None:
         a = self.attack
         phases = [("attack_start", a.start_s),
-                  ("drag_off_start", a.start_s + a.push_hold_s if a.mode in ("push", "takeover", "time_push") else None),
+                  ("drag_off_start",
+                   a.start_s + a.push_hold_s if a.mode in ("push", "takeover", "time_push") else None),
                   ("full_power", a.start_s + a.power_ramp_s if a.power_ramp_s > 0 else None)]
         for name, t in phases:
             if t is not None and name not in announced and tau_s >= t:
