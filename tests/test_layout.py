@@ -2,9 +2,12 @@
 see the simulator or the evaluation (the truth), the flight side talks to the receiver only over the link."""
 
 import ast
+import subprocess
+import sys
 from pathlib import Path
 
-PACKAGE = Path(__file__).resolve().parents[1] / "semperfi"
+REPO = Path(__file__).resolve().parents[1]
+PACKAGE = REPO / "semperfi"
 LEAVES = {"address", "config", "errors"}     # top-level modules with no room imports of their own
 MAY_IMPORT = {
     "gps": set(),
@@ -52,3 +55,12 @@ def test_the_check_sees_a_forbidden_import(tmp_path):
     module = tmp_path / "m.py"
     module.write_text("from ..sim.world import World\nfrom ..gps import codes\nimport semperfi.eval.metrics\n")
     assert _imported_rooms(module) == {"sim", "gps", "eval"}
+
+
+def test_the_code_is_ruff_clean():
+    """ruff, as configured in pyproject.toml, on the package, the tests, the benchmarks and the Python scripts."""
+    scripts = [p for p in sorted((REPO / "scripts").iterdir())
+               if p.is_file() and p.read_text(encoding="utf-8", errors="replace").startswith("#!/usr/bin/env python")]
+    run = subprocess.run([sys.executable, "-m", "ruff", "check", "--no-cache", "semperfi", "tests", "benchmarks",
+                          *map(str, scripts)], cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-1000:]
