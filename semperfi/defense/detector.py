@@ -7,7 +7,7 @@ CAF maximum, so the main peak is also tested for a second path underneath it (tw
 acquisition to the next, so a seamless takeover raises the alarm when the separation crosses the threshold.
 """
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -76,23 +76,26 @@ class PeakPair:
 CROSS_TALK_SHARE = 0.5
 
 
-def auxiliary_peaks(caf: Caf, cafs: dict[int, Caf], cfg: DetectorConfig, fs_hz: float) -> list[PeakPair]:
-    """Auxiliary peaks in one PRN's CAF, judged against its main peak and the other PRNs' signals."""
-    if not examinable(caf.best, caf, cafs, cfg, fs_hz):
+def auxiliary_peaks(caf: Caf, cafs: dict[int, Caf], cfg: DetectorConfig, fs_hz: float,
+                    block_s: float | None = None) -> list[PeakPair]:
+    """Auxiliary peaks in one PRN's CAF, judged against its main peak and the other PRNs' signals (block_s: see
+    is_cross_talk)."""
+    if not examinable(caf.best, caf, cafs, cfg, fs_hz, block_s):
         return []
     main = caf.best
     floor_metric = main.metric * 10 ** (-cfg.sidelobe_margin_db / 10)
     pairs = []
     for p in caf.peaks[1:]:
         sep = chips_apart(p.code_phase_chips, main.code_phase_chips)
-        if sep > cfg.separation_chips and p.metric >= floor_metric and examinable(p, caf, cafs, cfg, fs_hz):
+        if sep > cfg.separation_chips and p.metric >= floor_metric and examinable(p, caf, cafs, cfg, fs_hz, block_s):
             pairs.append(PeakPair(caf.prn, main, p, sep, "caf"))
     return pairs
 
 
-def examinable(peak: Peak | None, caf: Caf, cafs: dict[int, Caf], cfg: DetectorConfig, fs_hz: float) -> bool:
+def examinable(peak: Peak | None, caf: Caf, cafs: dict[int, Caf], cfg: DetectorConfig, fs_hz: float,
+               block_s: float | None = None) -> bool:
     return (peak is not None and peak.metric >= cfg.min_peak_thresholds * caf.threshold
-            and not is_cross_talk(peak, caf, cafs, cfg, fs_hz))
+            and not is_cross_talk(peak, caf, cafs, cfg, fs_hz, block_s))
 
 
 def is_cross_talk(peak: Peak, caf: Caf, cafs: dict[int, Caf], cfg: DetectorConfig, fs_hz: float,
@@ -106,7 +109,8 @@ def is_cross_talk(peak: Peak, caf: Caf, cafs: dict[int, Caf], cfg: DetectorConfi
 
     block_s: the correlation's coherent length when it is not the CAF's -- the two-path fit takes each 1 ms block's
     amplitude apart, so a stronger signal 100 Hz away, which a 40 ms coherent sum averages out, still leaks into
-    every block of it: the cross-correlation's power is then the mean over blocks of this length.
+    every block of it: the cross-correlation's power is then the mean over blocks of this length. Also the bound for
+    a long coherent CAF: a stronger signal's data bit flips inside its blocks undo the averaging out.
     """
     if peak.metric >= cfg.cross_correlation_metric * caf.threshold:
         return False
@@ -123,6 +127,15 @@ def is_cross_talk(peak: Peak, caf: Caf, cafs: dict[int, Caf], cfg: DetectorConfi
         per_block = np.sum((mine * _signal(prn, b.code_phase_chips, b.doppler_hz, t)).reshape(-1, k), axis=1) / k
         leaked += b.metric * float(np.mean(np.abs(per_block) ** 2))
     return leaked >= peak.metric * CROSS_TALK_SHARE
+
+
+def in_units_of(caf: Caf, cafs: dict[int, Caf]) -> dict[int, Caf]:
+    """The CAFs with their peaks' metrics as `caf`'s coherent length would see them: a signal's |R|^2 / sigma^2 grows
+    with the coherent length, and cross-talk is judged by comparing metrics."""
+    def scaled(other: Caf) -> Caf:
+        k = caf.coherent_s / other.coherent_s
+        return replace(other, peaks=tuple(replace(p, metric=p.metric * k) for p in other.peaks))
+    return {prn: scaled(other) for prn, other in cafs.items()}
 
 
 def _signal(prn: int, code_phase_chips: float, doppler_hz: float, t_s: np.ndarray) -> np.ndarray:

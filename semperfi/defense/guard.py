@@ -6,12 +6,15 @@
 Used in front of the receiver chain (DefendedReceiver) and on its own as the plug-in filter (semperfi clean).
 """
 
+from dataclasses import replace
+
 import numpy as np
 
 from ..gps.codes import chips_offset
 from ..receiver.acquisition import DopplerGrid, Peak, acquire
 from .canceller import JOINT_WITHIN_CHIPS, Canceller, CancellerConfig, caf_amplitude, refine_peak
-from .detector import Alarm, DetectorConfig, SpoofingDetector, auxiliary_peaks, examinable, is_cross_talk
+from .detector import (Alarm, DetectorConfig, SpoofingDetector, auxiliary_peaks, examinable, in_units_of,
+                       is_cross_talk)
 from .power import implausible_peaks
 from .policy import POWER_MARGIN_DB, Choice, by_power, choose, parse_policy
 
@@ -32,6 +35,17 @@ TWIN_MATCH_CHIPS = 0.25   # an examination's code phase (2 ms coherent, interpol
 # the PRN is taken as merged, its range the attacker's within half a chip: never a good fix.
 LEFT_MIN_THRESHOLDS = 2.0
 RELEASE_MARGIN_S = 2e-3   # a dropped cancellation leaves the samples cleaned this much later (held-back period)
+# Once an attack is known, a PRN with one peak is looked at longer, around its own Doppler: its twin may lie beside a
+# spoofer it is too weak to show next to in 2 ms x 20 under a dozen spoofers' interference (GPS-SDR-SIM, path loss,
+# +6 dB: a 35.8 dB-Hz twin 2.9 chips from its spoofer was found after 22 s, and `clean` passed that spoofer through
+# until then). 10 ms x 10 on the cleaned samples sees a 36 dB-Hz twin at ~16 dB per coherent block. A peak found so
+# alarms when the next look finds it again as far from the main one (TWIN_MATCH_CHIPS): a twin keeps its offset from
+# its spoofer, while what a dozen +15 dB spoofers' cross-talk and bit flips raise moves with their code phases.
+DEEP_COHERENT_MS = 10
+DEEP_NONCOHERENT = 10
+DEEP_SPAN_HZ = 250.0      # a twin's Doppler is within a few hertz of a static spoofer's; a moving one's is found by
+DEEP_STEP_HZ = 50.0       # the full searches
+DEEP_CROSS_TALK_BLOCK_S = 1e-3   # cross-talk judged per code period (is_cross_talk): the strong signals' bit flips
 MAX_SWAPS = 2          # a PRN whose cancelled peak is found legitimate this often is given up
 EXAMINE_MAX_PEAKS = 16  # a strong spoofer's Doppler and code sidelobes are local maxima too: room for its twin
 
@@ -56,6 +70,10 @@ class SpoofGuard:
         self.window = int(round(fs_hz * 1e-3)) * WINDOW_MS
         self._raw = np.empty(0, dtype=np.complex64)      # the newest raw samples, for examinations
         self._clean = np.empty(0, dtype=np.complex64)    # the newest cleaned samples, for verification
+        self.deep_window = int(round(fs_hz * 1e-3)) * DEEP_COHERENT_MS * DEEP_NONCOHERENT
+        self._deep = np.empty(0, dtype=np.complex64)     # the newest cleaned samples, for the longer looks
+        self._deep_under: frozenset = frozenset()        # the PRNs cancelled while they were cleaned
+        self._deep_seen: dict[int, list[float]] = {}     # PRN -> offsets (chips) of the second peaks the last look saw
         self._seen = 0                                   # raw samples received
         self._cleaned = 0                                # cleaned samples produced
         self._next_exam = 0
@@ -128,6 +146,11 @@ class SpoofGuard:
         self._forget_lost(self._seen / self.fs_hz)
         self._cleaned += cleaned.size
         self._clean = np.concatenate([self._clean, cleaned[-self.window:]])[-self.window:]
+        if self.alarmed_prns:
+            under = frozenset(self.canceller.prns)
+            if under != self._deep_under:    # a look mixing two sets of cancellations would see a spoofer's edge
+                self._deep, self._deep_under = np.empty(0, dtype=np.complex64), under
+            self._deep = np.concatenate([self._deep, cleaned[-self.deep_window:]])[-self.deep_window:]
         self._verify()
         return cleaned
 
@@ -183,7 +206,39 @@ class SpoofGuard:
             self._alarm(alarm.prn, t_s, alarm.pair.as_event())
             if self.d["mode"] == "full":
                 self._on_alarm(alarm, t_s)
+        self._look_deeper(cafs)
         self._note_awaiting_pairs(cafs, first)
+
+    def _look_deeper(self, cafs: dict) -> None:
+        """Under a known attack, each PRN showing one peak and not yet alarmed: a longer look at the cleaned samples
+        around its Doppler (DEEP_*) for a second peak, which alarms it like any other."""
+        if not self.alarmed_prns or self._deep.size < self.deep_window:
+            return
+        first = self._cleaned - self._deep.size
+        looked, self._looked = self._looked, (self._deep, first)
+        a = self.cfg["acquisition"]
+        for prn in sorted(self.present_prns - self.alarmed_prns - self.canceller.prns - set(self.awaiting)
+                          - set(self.gave_up)):
+            caf = cafs.get(prn)
+            if caf is None or caf.best is None or auxiliary_peaks(caf, cafs, self.detector.cfg, self.fs_hz):
+                continue
+            grid = DopplerGrid(caf.best.doppler_hz, DEEP_SPAN_HZ, DEEP_STEP_HZ)
+            deep = acquire(self._deep, self.fs_hz, [prn], grid, self.if_hz, DEEP_COHERENT_MS, DEEP_NONCOHERENT,
+                           a["pfa"], EXAMINE_MAX_PEAKS, excise=True, tail_threshold=True)[prn]
+            pairs = auxiliary_peaks(deep, {**in_units_of(deep, cafs), prn: deep}, self.detector.cfg, self.fs_hz,
+                                    block_s=DEEP_CROSS_TALK_BLOCK_S)
+            offsets = [chips_offset(p.auxiliary.code_phase_chips, p.main.code_phase_chips) for p in pairs]
+            again = [p for p, o in zip(pairs, offsets)
+                     if any(abs(o - seen) < TWIN_MATCH_CHIPS for seen in self._deep_seen.get(prn, []))]
+            self._deep_seen[prn] = offsets
+            if not again:
+                continue
+            pair = replace(again[0], source="deep")
+            t_s = first / self.fs_hz
+            self._alarm(prn, t_s, pair.as_event())
+            if self.d["mode"] == "full":
+                self._on_alarm(Alarm(t_s, prn, pair, None), t_s)
+        self._looked = looked
 
     def _note_awaiting_pairs(self, cafs: dict, first: int) -> None:
         """Where the two peaks of each PRN awaiting a verdict are now (the receiver follows both until it comes)."""

@@ -107,14 +107,14 @@ def fingerprint(case, nav_path: str | Path, work: Path, gnss_sdr: bool = True, f
     from ..iq.formats import ISHORT
     from ..receiver.run import NoSignal, run_file
     from .gnss_sdr import GNSS_SDR_EXE, run_gnss_sdr
-    from .xgen import RECEIVER_SETTINGS, prepare
+    from .xgen import RECEIVER_SETTINGS, prepare, score
     data, reference = prepare(case, nav_path, work), prepare(case.clean, nav_path, work)
     cleaned = work / f"{case.tag}-clean.bin"
     summary = clean_file(data, cleaned, ISHORT, case.fs_hz, 0.0, _receiver_config(None, ['defense.mode="full"']))
     week, sow = case.truth.start_gps
     t0_s = week * 604800.0 + sow + from_s
     out = {"case": case.tag, "cleaned": str(cleaned), "cancelled": list(summary.cancelled), "gave_up": summary.gave_up,
-           "attenuation_db": summary.attenuation_db, "receivers": {}}
+           "attenuation_db": summary.attenuation_db, "receivers": {}, "fixes": {}}
     plain = _receiver_config(None, ['defense.mode="off"', *RECEIVER_SETTINGS])
     obs = {}
     for name, path in (("reference", reference), ("cleaned", cleaned)):
@@ -125,16 +125,35 @@ def fingerprint(case, nav_path: str | Path, work: Path, gnss_sdr: bool = True, f
             pass
         rinex = run_dir / "observations.rnx"
         obs[name] = read_ranges(rinex) if rinex.is_file() else {}
+        fixes = score(run_dir / "fixes.csv", case.place, motion=case.motion) if (run_dir / "fixes.csv").is_file() \
+            else {"fixes": 0}
+        out["fixes"].setdefault("semperfi --defense off", {})[name] = fixes
     out["receivers"]["semperfi --defense off"] = range_differences(obs["reference"], obs["cleaned"], t0_s)
     if gnss_sdr and shutil.which(GNSS_SDR_EXE):
         for name, path in (("reference", reference), ("cleaned", cleaned)):
             run_dir = work / f"{case.tag}-plugin-{name}-gnss-sdr"
             shutil.rmtree(run_dir, ignore_errors=True)
-            run_gnss_sdr(path, case.fs_hz, "ishort", 0.0, run_dir, 1800.0, trop_model="OFF", rinex=True)
+            fixes = run_gnss_sdr(path, case.fs_hz, "ishort", 0.0, run_dir, 1800.0, trop_model="OFF", rinex=True)
+            out["fixes"].setdefault("gnss-sdr", {})[name] = _gnss_sdr_score(fixes, case)
             found = sorted(p for p in run_dir.iterdir() if p.suffix[1:3].isdigit() and p.suffix[3:].upper() == "O")
             obs[name] = read_ranges(found[0]) if found else {}
         out["receivers"]["gnss-sdr"] = range_differences(obs["reference"], obs["cleaned"], t0_s)
     return out
+
+
+def _gnss_sdr_score(fixes, case, last_s: float = 10.0) -> dict:
+    """GNSS-SDR's fixes as xgen.score has ours: how many, the first (seconds into the recording, which starts at
+    the case's time of day), the horizontal error over the last seconds and at most."""
+    from .gnss_sdr import horizontal_errors_m
+    if not fixes:
+        return {"fixes": 0}
+    _, clock = case.date.split(",")
+    h, m, sec = (float(v) for v in clock.split(":"))
+    t_s = (np.array([f.t_sod_s for f in fixes]) - (3600 * h + 60 * m + sec)) % 86400.0
+    err = horizontal_errors_m(fixes, case.place.lat_deg, case.place.lon_deg)
+    last = t_s >= t_s[-1] - last_s
+    return {"fixes": len(fixes), "first_fix_s": round(float(t_s[0]), 1),
+            "last_mean_m": round(float(np.mean(err[last])), 2), "max_m": round(float(np.max(err)), 1)}
 
 
 @dataclass(frozen=True)
