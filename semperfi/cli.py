@@ -587,5 +587,65 @@ def demo(out_dir, duration_s, sets, autopilot_path, speedup, instance) -> None:
         _fail(str(exc), getattr(exc, "exit_code", EXIT_BAD_INPUT))
 
 
+@main.command(name="eval")
+@click.option("--sweep", "spec_path", required=True, type=click.Path(dir_okay=False),
+              help="the sweep's spec (TOML: [sweep] and [space], see semperfi.eval.sweep)")
+@click.option("--nav", "nav_path", required=True, type=click.Path(dir_okay=False),
+              help="RINEX 2 GPS navigation file the scenes are rendered from (their day is its day)")
+@click.option("--out", "out_dir", default="out/sweep", show_default=True, type=click.Path(file_okay=False))
+@click.option("--ray-address", default=None, help="a Ray cluster's address (default: Ray on this machine)")
+@click.option("--pool", is_flag=True, help="a local process pool even when Ray is installed")
+@click.option("--workers", type=click.IntRange(1, 256), default=2, show_default=True,
+              help="with the process pool: how many cells at once")
+@click.option("--only", "only_id", default=None, metavar="CELL_ID", help="run this one cell here (a row's repro)")
+def evaluate(spec_path, nav_path, out_dir, ray_address, pool, workers, only_id) -> None:
+    """Sweep a scenario space: every cell a GPS-SDR-SIM scene received by SemperFi, one row of OUT/results.csv
+    (and .parquet) each as it finishes; a rerun skips the cells already there. Then OUT/report.html."""
+    import json
+
+    from .eval.sweep import SweepError, load_spec, ray_available, read_results, run_only, run_sweep
+    from .eval.sweep_report import render_report
+    try:
+        spec = load_spec(spec_path)
+        if only_id:
+            click.echo(json.dumps(run_only(spec, nav_path, out_dir, only_id)))
+            return
+        if not pool and not ray_available():
+            click.echo("semperfi: Ray is not installed (pip install semperfi[sweep]): the cells run in a local "
+                       "process pool; Ray would spread them over a cluster", err=True)
+
+        def told(row, done, total):
+            state = "FAILED " + str(row.get("error")) if row.get("error") else (
+                f"availability {row.get('availability')}, last 10 s {row.get('last_mean_m')} m")
+            click.echo(f"[{done}/{total}] {row['cell_id']} {row['kind']} {row['place']} {row['date']} "
+                       f"{row['offset_m']:g} m {row['advantage_db']:+g} dB: {state}")
+        summary = run_sweep(spec, nav_path, out_dir, "pool" if pool else "auto", workers, ray_address, told)
+        report = render_report(read_results(f"{out_dir}/results.csv"), out_dir)
+        click.echo(f"{summary.cells} cells: {summary.skipped} already done, {summary.ran} run on {summary.backend}, "
+                   f"{summary.failed} failed; {report}")
+    except SweepError as exc:
+        _fail(str(exc))
+    except (ValueError, OSError) as exc:
+        _fail(str(exc), getattr(exc, "exit_code", EXIT_BAD_INPUT))
+
+
+@main.command()
+@click.argument("results", type=click.Path(dir_okay=False, exists=True))
+@click.option("--out", "out_dir", default=None, type=click.Path(file_okay=False),
+              help="where report.html goes (default: beside RESULTS)")
+def report(results, out_dir) -> None:
+    """Render a sweep's report from its results table (CSV or Parquet) without running anything."""
+    from pathlib import Path
+
+    from .eval.sweep import SweepError, read_results
+    from .eval.sweep_report import render_report
+    try:
+        click.echo(render_report(read_results(results), out_dir or Path(results).parent))
+    except SweepError as exc:
+        _fail(str(exc))
+    except (ValueError, OSError) as exc:
+        _fail(str(exc))
+
+
 if __name__ == "__main__":
     main()

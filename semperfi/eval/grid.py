@@ -46,6 +46,8 @@ class Cell:
     fs_hz: float = 2.6e6
     path_loss: bool = True
     cn0_dbhz: float = PATH_LOSS_CN0_DBHZ
+    azimuth_deg: float = 90.0      # where the claimed position lies from the truth (static and flying cells)
+    noise_seed: int = 1            # the receiver noise's
 
     @property
     def label(self) -> str:
@@ -54,6 +56,8 @@ class Cell:
                 "flying": f"flying, maneuver at {self.at_s:g} s, spoofer {self.offset_m:g} m",
                 "takeover": f"takeover, {self.rate:g} m/s E after {self.at_s:g} s",
                 "push": f"time push {self.rate:g} ns/s from {self.at_s:g} s"}[self.kind]
+        if self.azimuth_deg != 90.0 and self.kind in ("static", "flying"):
+            what += f" at {self.azimuth_deg:g} deg"
         return (f"{self.place} {when} {what} {self.advantage_db:+g} dB{' imu' if self.imu else ''}"
                 f"{'' if self.path_loss else ' no path loss'} {self.duration_s:g} s")
 
@@ -73,7 +77,7 @@ class Cell:
             case, ins = Case(place, self.offset_m, self.advantage_db, duration_s=self.duration_s, **common), None
         else:
             raise ValueError(f"unknown cell kind {self.kind!r}")
-        return case, (ins if self.imu else None)
+        return replace(case, azimuth_deg=self.azimuth_deg, seed=self.noise_seed), (ins if self.imu else None)
 
     def shortened(self, duration_s: float) -> Cell:
         """The same attack in a shorter recording: a maneuver, takeover or push then starts at SHORT_EVENT_S."""

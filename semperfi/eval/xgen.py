@@ -105,7 +105,8 @@ class Case:
 
     @property
     def tag(self) -> str:
-        attack = f"{self.offset_m:g}m-{self.advantage_db:+g}dB" if self.attacker else "clean"
+        bearing = "" if self.azimuth_deg == 90.0 else f"-{self.azimuth_deg:g}deg"
+        attack = f"{self.offset_m:g}m{bearing}-{self.advantage_db:+g}dB" if self.attacker else "clean"
         if self.attacker and self.spoof_start_s:
             attack += f"-from{self.spoof_start_s:g}s"
         if self.motion:
