@@ -602,6 +602,7 @@ def evaluate(spec_path, nav_path, out_dir, ray_address, pool, workers, only_id) 
     """Sweep a scenario space: every cell a GPS-SDR-SIM scene received by SemperFi, one row of OUT/results.csv
     (and .parquet) each as it finishes; a rerun skips the cells already there. Then OUT/report.html."""
     import json
+    import time
 
     from .eval.sweep import SweepError, load_spec, ray_available, read_results, run_only, run_sweep
     from .eval.sweep_report import render_report
@@ -614,11 +615,18 @@ def evaluate(spec_path, nav_path, out_dir, ray_address, pool, workers, only_id) 
             click.echo("semperfi: Ray is not installed (pip install semperfi[sweep]): the cells run in a local "
                        "process pool; Ray would spread them over a cluster", err=True)
 
+        started, failed, first_done = time.monotonic(), [0], []
+
         def told(row, done, total):
+            first_done.append(done)
+            failed[0] += bool(row.get("error"))
+            rate_s = (time.monotonic() - started) / len(first_done)    # this run's seconds per cell
             state = "FAILED " + str(row.get("error")) if row.get("error") else (
                 f"availability {row.get('availability')}, last 10 s {row.get('last_mean_m')} m")
-            click.echo(f"[{done}/{total}] {row['cell_id']} {row['kind']} {row['place']} {row['date']} "
-                       f"{row['offset_m']:g} m {row['advantage_db']:+g} dB: {state}")
+            click.echo(f"[{done}/{total}, {failed[0]} failed, ~{rate_s * (total - done) / 60:.0f} min left] "
+                       f"{row['cell_id']} {row['kind']} {row['place']} {row['date']} {row['offset_m']:g} m "
+                       f"{row['advantage_db']:+g} dB: {state}")
+            sys.stdout.flush()
         summary = run_sweep(spec, nav_path, out_dir, "pool" if pool else "auto", workers, ray_address, told)
         report = render_report(read_results(f"{out_dir}/results.csv"), out_dir)
         click.echo(f"{summary.cells} cells: {summary.skipped} already done, {summary.ran} run on {summary.backend}, "

@@ -72,8 +72,11 @@ def test_the_table_drops_a_torn_last_line_and_a_repeated_cell(tmp_path):
     for row in rows:
         results.add(row)
     results.add(rows[0])                                   # run twice by mistake: counted once
+    with pytest.raises(SweepError, match="another sweep is writing"):
+        Results(tmp_path)                                  # a second sweep on the same table, meanwhile
     with open(tmp_path / RESULTS_CSV, "a") as f:
         f.write("id9,static,boston")                       # a kill mid-write
+    results.close()
     again = Results(tmp_path)
     assert [r["cell_id"] for r in again.rows] == ["id0", "id1", "id2"]
     assert (tmp_path / RESULTS_CSV).read_text().endswith("\n")
@@ -104,12 +107,14 @@ needs_gps_sdr_sim = pytest.mark.skipif(gps_sdr_sim_path() is None, reason="gps-s
 @needs_gps_sdr_sim
 def test_a_sweep_killed_after_one_cell_resumes_without_losing_or_repeating_one(tmp_path, brdc_path):
     """Two GPS-SDR-SIM cells, a flying cell too short for its maneuver (which fails in the harness) and a static
-    spoofer (20 s: a fix needs a subframe decoded): the first run stops after one cell, the rerun runs the other and
-    no more; each cell's row once, the static one measured against the truth, the failed one with its
-    reproduction."""
-    spec = load_spec(_spec(tmp_path, '[space]\nkind = ["flying", "static"]\nstart_s = [13]\n'
-                                     'offset_m = [1000]\nadvantage_db = [6]\nduration_s = [20]\npath_loss = [false]\n'
-                                     'at_s = [3]\n'))
+    spoofer: the first run stops after one cell, the rerun runs the other and no more; each cell's row once, the
+    failed one with its reproduction, the static one measured against the truth. That one is a cell a sweep found:
+    +9.8 dB from the first sample, 3.2 km east, where two PRNs never showed a twin: their single peaks were the
+    spoofer's, and a fix mixing them with the twins under cancellation was 1.8 km off (26 % available); the fix is
+    now built from the PRNs whose spoofer is under cancellation while four of them remain."""
+    spec = load_spec(_spec(tmp_path, '[space]\nkind = ["flying", "static"]\nplace = ["sydney"]\nstart_s = [25235]\n'
+                                     'offset_m = [3208.349]\nazimuth_deg = [84.576]\nadvantage_db = [9.788]\n'
+                                     'duration_s = [20]\npath_loss = [false]\nat_s = [3]\n'))
     out = tmp_path / "out"
     seen = []
     first = run_sweep(spec, brdc_path, out, "pool", 1, on_row=lambda row, *_: seen.append(row["cell_id"]), limit=1)
@@ -122,7 +127,7 @@ def test_a_sweep_killed_after_one_cell_resumes_without_losing_or_repeating_one(t
     assert sorted(seen) == sorted(rows) and len(rows) == 2
     by_kind = {r["kind"]: r for r in rows.values()}
     static = by_kind["static"]
-    assert not static["error"] and float(static["availability"]) > 0.9 and float(static["last_mean_m"]) < 10.0
+    assert not static["error"] and float(static["availability"]) > 0.9 and float(static["last_mean_m"]) < 5.0
     assert int(static["good_but_wrong"]) == 0
     flying = by_kind["flying"]
     assert "outlasts" in flying["error"] and f"--only {flying['cell_id']}" in flying["repro"]

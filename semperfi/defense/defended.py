@@ -107,7 +107,12 @@ class DefendedReceiver:
             self._watch_twins()
             if self.continuity is not None:
                 self._identify_by_continuity()
-            self.inner.excluded_prns = {p for p in self.inner.channels if not self.guard.resolved(p)}
+            g = self.guard
+            self.inner.excluded_prns = {p for p in self.inner.channels if not g.resolved(p)}
+            # too few resolved: a fix from the PRNs whose spoofer is at least under cancellation (a guess's fix,
+            # recovering at best) rather than one mixing in a single peak that may be a spoofer's with its twin unseen
+            self.inner.suspect_prns = {p for p in self.inner.excluded_prns
+                                       if p not in g.cancel_started and p not in g.merged}
         if self.inner.rectifier is not None:
             self.inner.rectifier.update(self.guard.canceller)
         self.inner.feed(cleaned)

@@ -29,6 +29,7 @@ The spec (TOML):
 from __future__ import annotations
 
 import csv
+import fcntl
 import hashlib
 import json
 import os
@@ -47,6 +48,7 @@ from .xgen import PLACES, ephemeris_day, gps_sdr_sim_path, one_line
 
 RESULTS_CSV = "results.csv"
 RESULTS_PARQUET = "results.parquet"
+LOCK = ".sweep.lock"
 CELL_FIELDS = tuple(f.name for f in fields(Cell))
 SPACE_KEYS = ("start_s", *(name for name in CELL_FIELDS if name != "date"))
 KINDS = ("static", "flying", "takeover", "push")
@@ -170,16 +172,24 @@ def _task(cell_dict: dict, nav_path: str, work: str, sets: tuple[str, ...]) -> d
 
 
 class Results:
-    """DIR/results.csv, one row per finished cell, appended as cells finish (a torn last line from a kill is cut)."""
+    """DIR/results.csv, one row per finished cell, appended as cells finish (a torn last line from a kill is cut).
+    One writer at a time: a second sweep on the same DIR is refused while the first holds DIR/.sweep.lock (the
+    operating system lets it go when its holder dies, however it dies)."""
 
     def __init__(self, out_dir: Path):
+        out_dir.mkdir(parents=True, exist_ok=True)
+        self._lock = open(out_dir / LOCK, "w")
+        try:
+            fcntl.flock(self._lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            self._lock.close()
+            raise SweepError(f"{out_dir}: another sweep is writing these results") from None
         self.csv = out_dir / RESULTS_CSV
         self.rows: list[dict] = []
         if self.csv.exists():
             self.rows = read_results(self.csv)
             self._cut_torn_tail()
         else:
-            out_dir.mkdir(parents=True, exist_ok=True)
             with open(self.csv, "w", newline="") as f:
                 csv.writer(f).writerow(ROW_KEYS)
 
@@ -200,6 +210,9 @@ class Results:
             os.fsync(f.fileno())
         self.rows.append({k: row.get(k) for k in ROW_KEYS})
         write_parquet(self.csv)
+
+    def close(self) -> None:
+        self._lock.close()
 
 
 def read_results(path: str | Path) -> list[dict]:
@@ -297,9 +310,12 @@ def run_sweep(spec: Spec, nav_path: str | Path, out_dir: str | Path, backend: st
     on_row(row, done, total) is told of each finished cell; limit: stop after this many (a test's kill)."""
     if gps_sdr_sim_path() is None:
         raise SweepError("gps-sdr-sim is not on PATH (the sweep's cells are GPS-SDR-SIM scenes)")
+    if backend == "auto":
+        backend = "ray" if ray_available() else "pool"
+    if backend == "ray" and not ray_available():
+        raise SweepError("Ray is not installed (pip install semperfi[sweep]); --pool runs the cells here")
     out_dir = Path(out_dir)
-    day = ephemeris_day(nav_path)
-    cells = cells_of(spec, day)
+    cells = cells_of(spec, ephemeris_day(nav_path))
     results = Results(out_dir)
     done = results.done
     jobs, seen = [], set()
@@ -310,23 +326,22 @@ def run_sweep(spec: Spec, nav_path: str | Path, out_dir: str | Path, backend: st
             jobs.append((c, i))
     skipped = len(cells) - len(jobs)
     jobs = jobs[:limit] if limit is not None else jobs
-    if backend == "auto":
-        backend = "ray" if ray_available() else "pool"
-    if backend == "ray" and not ray_available():
-        raise SweepError("Ray is not installed (pip install semperfi[sweep]); --pool runs the cells here")
     runner = (_ray_runner(jobs, str(nav_path), out_dir, spec.sets, ray_address) if backend == "ray"
               else _pool_runner(jobs, str(nav_path), out_dir, spec.sets, workers))
     ran = failed = 0
-    for c, i, outcome in runner:
-        if isinstance(outcome, BaseException):
-            outcome = {"crash": None, "error": "worker: " + one_line(outcome)}
-        row = {"cell_id": i, **asdict(c), **outcome,
-               "repro": f"semperfi eval --sweep {spec.path} --nav {nav_path} --out {out_dir} --only {i}"}
-        results.add(row)
-        ran += 1
-        failed += bool(row.get("crash") or row.get("error"))
-        if on_row is not None:
-            on_row(row, skipped + ran, len(cells))
+    try:
+        for c, i, outcome in runner:
+            if isinstance(outcome, BaseException):
+                outcome = {"crash": None, "error": "worker: " + one_line(outcome)}
+            row = {"cell_id": i, **asdict(c), **outcome,
+                   "repro": f"semperfi eval --sweep {spec.path} --nav {nav_path} --out {out_dir} --only {i}"}
+            results.add(row)
+            ran += 1
+            failed += bool(row.get("crash") or row.get("error"))
+            if on_row is not None:
+                on_row(row, skipped + ran, len(cells))
+    finally:
+        results.close()
     return SweepSummary(len(cells), skipped, ran, failed, backend, (out_dir / RESULTS_PARQUET).exists())
 
 

@@ -92,6 +92,9 @@ class Receiver:
         # PRNs a supervisor (the defence) distrusts: left out of fixes while enough others remain
         self.excluded_prns: set[int] = set()
         self.min_sats_excluding = 5
+        # failing that, the PRNs it suspects most (a subset of those): left out while a fix remains possible
+        self.suspect_prns: set[int] = set()
+        self.min_sats_suspecting = 4
         # and PRNs it trusts less (a range it knows to be biased): left out while this many others remain
         self.distrusted_prns: set[int] = set()
         self.min_sats_distrusting = 6
@@ -493,6 +496,7 @@ class Receiver:
     def _fix_at(self, sample: float) -> None:
         raw = self.observations_at(sample)
         for left_out, enough in ((self.excluded_prns, self.min_sats_excluding),
+                                 (self.suspect_prns, self.min_sats_suspecting),
                                  (self.distrusted_prns, self.min_sats_distrusting)):
             kept = [r for r in raw if r[0] not in left_out]
             if len(kept) >= enough:
