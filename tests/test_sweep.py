@@ -114,7 +114,7 @@ def test_a_sweep_killed_after_one_cell_resumes_without_losing_or_repeating_one(t
     now built from the PRNs whose spoofer is under cancellation while four of them remain."""
     spec = load_spec(_spec(tmp_path, '[space]\nkind = ["flying", "static"]\nplace = ["sydney"]\nstart_s = [25235]\n'
                                      'offset_m = [3208.349]\nazimuth_deg = [84.576]\nadvantage_db = [9.788]\n'
-                                     'duration_s = [20]\npath_loss = [false]\nat_s = [3]\n'))
+                                     'duration_s = [16]\npath_loss = [false]\nat_s = [3]\n'))
     out = tmp_path / "out"
     seen = []
     first = run_sweep(spec, brdc_path, out, "pool", 1, on_row=lambda row, *_: seen.append(row["cell_id"]), limit=1)
