@@ -615,15 +615,15 @@ def evaluate(spec_path, nav_path, out_dir, ray_address, pool, workers, only_id) 
             click.echo("semperfi: Ray is not installed (pip install semperfi[sweep]): the cells run in a local "
                        "process pool; Ray would spread them over a cluster", err=True)
 
-        started, failed, first_done = time.monotonic(), [0], []
+        started, ran, failed = time.monotonic(), 0, 0
 
         def told(row, done, total):
-            first_done.append(done)
-            failed[0] += bool(row.get("error"))
-            rate_s = (time.monotonic() - started) / len(first_done)    # this run's seconds per cell
+            nonlocal ran, failed
+            ran, failed = ran + 1, failed + bool(row.get("error"))
+            rate_s = (time.monotonic() - started) / ran    # this run's seconds per cell
             state = "FAILED " + str(row.get("error")) if row.get("error") else (
                 f"availability {row.get('availability')}, last 10 s {row.get('last_mean_m')} m")
-            click.echo(f"[{done}/{total}, {failed[0]} failed, ~{rate_s * (total - done) / 60:.0f} min left] "
+            click.echo(f"[{done}/{total}, {failed} failed, ~{rate_s * (total - done) / 60:.0f} min left] "
                        f"{row['cell_id']} {row['kind']} {row['place']} {row['date']} {row['offset_m']:g} m "
                        f"{row['advantage_db']:+g} dB: {state}")
             sys.stdout.flush()

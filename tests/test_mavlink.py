@@ -19,8 +19,9 @@ from pymavlink.dialects.v20 import common as mav  # noqa: E402
 
 from semperfi.defense.identifier import GpsTrack, ImuTrack, paper_test  # noqa: E402
 from semperfi.flight.maneuver import ManeuverLimits, draw  # noqa: E402
-from semperfi.flight.mavlink_pilot import ManeuverAborted, Pilot  # noqa: E402
+from semperfi.flight.mavlink_pilot import HOVER_S, ManeuverAborted, Pilot  # noqa: E402
 from semperfi.sim.mavlink_vehicle import MODES, MavlinkVehicle  # noqa: E402
+from semperfi.sim.multicopter import ImuErrors  # noqa: E402
 
 TIME_SCALE = 20.0
 
@@ -37,6 +38,21 @@ def vehicle():
     v = MavlinkVehicle(port, seed=4, heading_rad=0.6, time_scale=TIME_SCALE).start()
     yield v, port
     v.close()
+
+
+def _ins_rms_error_m(imu: ImuErrors, t_s: float) -> float:
+    """The RMS 3-D error of a hover-calibrated strapdown track t_s long, from the vehicle's IMU error model: the
+    accelerometer's white noise (t^3 / 3), bias instability (t^5 / 20) and the bias the hover leaves (t^2 / 2) on every
+    axis; on the horizontal ones also gravity tilted by the gyro's angle random walk (t^5 / 20) and by the error of
+    the hovers' bias line (a least-squares slope of a random walk over HOVER_S: q^2 6 / (5 HOVER_S); g t^3 / 6 at the
+    start, its drift's share g t^4 / 24 over the line between the two hovers)."""
+    g = 9.80665
+    vertical = (imu.accel_noise_mps2_rthz ** 2 * t_s ** 3 / 3 + imu.accel_bias_instability_mps2 ** 2 * t_s ** 5 / 20
+                + (imu.accel_bias_mps2 * t_s ** 2 / 2) ** 2)
+    bias_rps = imu.gyro_noise_rps_rthz * np.sqrt(1.2 / HOVER_S)
+    tilt = ((g * imu.gyro_noise_rps_rthz) ** 2 * t_s ** 5 / 20 + (g * bias_rps * t_s ** 3 / 6) ** 2
+            + (g * bias_rps * np.sqrt(2) / (t_s + HOVER_S) * t_s ** 4 / 24) ** 2)
+    return float(np.sqrt(3 * vertical + 2 * tilt))
 
 
 def _truth_during(v, flown):
@@ -65,9 +81,9 @@ def test_a_drawn_maneuver_flown_over_mavlink_is_tracked_by_the_imu(vehicle):
     t_ins = flown.ins.t_s
     ins_at = np.stack([np.interp(t, t_ins, ins[:, k] - ins[0, k]) for k in range(3)], axis=-1)
     drift = np.linalg.norm(ins_at - truth, axis=1)
-    # the paper's worst IMU (0.44 m/s after 20 s) drifts about 0.011 m/s^2 * T^2 / 2; twice that, and 6 m at least
-    bound_m = max(6.0, 0.022 * (t[-1] - t[0]) ** 2)
-    assert drift.max() < bound_m, f"INS drifted {drift.max():.1f} m from the truth in {t[-1] - t[0]:.1f} s"
+    length_s = t[-1] - t_ins[0]
+    bound_m = 3.0 * _ins_rms_error_m(ImuErrors(), length_s)   # a 3-D Gaussian error beyond 3x its RMS: ~1e-5
+    assert drift.max() < bound_m, f"INS drifted {drift.max():.1f} m from the truth in {length_s:.1f} s"
     imu = ImuTrack(t_ins, ins[:, 0], ins[:, 1], ins[:, 2])
     assert not paper_test(imu, GpsTrack(t, *truth.T)).adversarial, "the true track is legitimate"
     spoofed = GpsTrack(t, np.zeros_like(t), np.zeros_like(t), np.zeros_like(t))   # a static spoofed position

@@ -78,7 +78,8 @@ def test_the_table_drops_a_torn_last_line_and_a_repeated_cell(tmp_path):
         f.write("id9,static,boston")                       # a kill mid-write
     results.close()
     again = Results(tmp_path)
-    assert [r["cell_id"] for r in again.rows] == ["id0", "id1", "id2"]
+    assert again.done == {"id0", "id1", "id2"}
+    assert [r["cell_id"] for r in read_results(tmp_path / RESULTS_CSV)] == ["id0", "id1", "id2"]
     assert (tmp_path / RESULTS_CSV).read_text().endswith("\n")
     again.add({"cell_id": "id3", "kind": "push"})
     assert [r["cell_id"] for r in read_results(tmp_path / RESULTS_CSV)] == ["id0", "id1", "id2", "id3"]

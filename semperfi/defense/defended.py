@@ -107,12 +107,10 @@ class DefendedReceiver:
             self._watch_twins()
             if self.continuity is not None:
                 self._identify_by_continuity()
-            g = self.guard
-            self.inner.excluded_prns = {p for p in self.inner.channels if not g.resolved(p)}
+            self.inner.excluded_prns = {p for p in self.inner.channels if not self.guard.resolved(p)}
             # too few resolved: a fix from the PRNs whose spoofer is at least under cancellation (a guess's fix,
             # recovering at best) rather than one mixing in a single peak that may be a spoofer's with its twin unseen
-            self.inner.suspect_prns = {p for p in self.inner.excluded_prns
-                                       if p not in g.cancel_started and p not in g.merged}
+            self.inner.suspect_prns = {p for p in self.inner.channels if self.guard.suspect(p)}
         if self.inner.rectifier is not None:
             self.inner.rectifier.update(self.guard.canceller)
         self.inner.feed(cleaned)
@@ -321,8 +319,7 @@ class DefendedReceiver:
                 # range to carry forward too
                 locked = {p: ch for p, ch in self.inner.channels.items() if not ch.pull_in}
                 self.continuity.note(fix, _code_phases(locked, sample))
-        elif g.d["mode"] != "full" or not all(g.resolved(p) or p in g.cancel_started or p in g.merged
-                                              for p in fix.prns):
+        elif g.d["mode"] != "full" or any(g.suspect(p) for p in fix.prns):
             state = "spoofing_detected"
         else:
             checked = (trusted(fix.raim) and fix.n_sats - 4 >= g.d["min_redundancy"]

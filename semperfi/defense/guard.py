@@ -533,6 +533,11 @@ class SpoofGuard:
         # takeover, so are the two merged
         return single and (prn in self.maneuver_legit or (self.detector.predates_attack(prn) and not self.takeover))
 
+    def suspect(self, prn: int) -> bool:
+        """Whether a PRN's range may be the attacker's anywhere: neither resolved, nor under cancellation, nor found
+        merged with its legitimate twin (its single peak may be a spoofer's whose twin is unseen)."""
+        return not (self.resolved(prn) or prn in self.cancel_started or prn in self.merged)
+
     def close_twin(self, prn: int) -> tuple[float, float] | None:
         """(how much stronger than its legitimate twin the spoofer is in dB, the twin's offset in chips) when the two
         lie within JOINT_WITHIN_CHIPS, from the strongest of the PRN's tracks; None when none is so close."""

@@ -47,7 +47,6 @@ from .grid import COLUMNS, Cell, run_cell
 from .xgen import PLACES, ephemeris_day, gps_sdr_sim_path, one_line
 
 RESULTS_CSV = "results.csv"
-RESULTS_PARQUET = "results.parquet"
 LOCK = ".sweep.lock"
 CELL_FIELDS = tuple(f.name for f in fields(Cell))
 SPACE_KEYS = ("start_s", *(name for name in CELL_FIELDS if name != "date"))
@@ -185,17 +184,13 @@ class Results:
             self._lock.close()
             raise SweepError(f"{out_dir}: another sweep is writing these results") from None
         self.csv = out_dir / RESULTS_CSV
-        self.rows: list[dict] = []
+        self.done: set[str] = set()      # the finished cells' ids
         if self.csv.exists():
-            self.rows = read_results(self.csv)
+            self.done = {r["cell_id"] for r in read_results(self.csv)}
             self._cut_torn_tail()
         else:
             with open(self.csv, "w", newline="") as f:
                 csv.writer(f).writerow(ROW_KEYS)
-
-    @property
-    def done(self) -> set[str]:
-        return {r["cell_id"] for r in self.rows}
 
     def _cut_torn_tail(self) -> None:
         data = self.csv.read_bytes()
@@ -208,7 +203,7 @@ class Results:
             csv.writer(f).writerow(["" if row.get(k) is None else row[k] for k in ROW_KEYS])
             f.flush()
             os.fsync(f.fileno())
-        self.rows.append({k: row.get(k) for k in ROW_KEYS})
+        self.done.add(row["cell_id"])
         write_parquet(self.csv)
 
     def close(self) -> None:
@@ -300,7 +295,6 @@ class SweepSummary:
     ran: int
     failed: int
     backend: str
-    parquet: bool
 
 
 def run_sweep(spec: Spec, nav_path: str | Path, out_dir: str | Path, backend: str = "auto", workers: int = 2,
@@ -342,7 +336,7 @@ def run_sweep(spec: Spec, nav_path: str | Path, out_dir: str | Path, backend: st
                 on_row(row, skipped + ran, len(cells))
     finally:
         results.close()
-    return SweepSummary(len(cells), skipped, ran, failed, backend, (out_dir / RESULTS_PARQUET).exists())
+    return SweepSummary(len(cells), skipped, ran, failed, backend)
 
 
 def run_only(spec: Spec, nav_path: str | Path, out_dir: str | Path, wanted: str) -> dict:
