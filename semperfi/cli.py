@@ -6,6 +6,7 @@ import warnings
 import click
 
 from . import __version__
+from .receiver.config import DEFAULTS as RECEIVER_DEFAULTS
 from .receiver.fix_stream import RATE_HZ
 from .errors import (EXIT_BAD_INPUT, EXIT_INPUT_LOST, EXIT_INPUT_SHORT, EXIT_INTERNAL, EXIT_INTERRUPTED,
                      EXIT_NO_SIGNAL)
@@ -38,8 +39,20 @@ def _tune_heap() -> None:
         mallopt(m_arena_max, 1)
 
 
+ACQUISITION = RECEIVER_DEFAULTS["acquisition"]   # `acquire` searches as the receiver does unless told otherwise
 FORMAT_HELP = ("ibyte | ishort | gr_complex | byte | short (real, with --if) | packed real2 iq2 real2sm iq2sm real4 "
                "iq4 | a SigMF datatype (else from the SigMF sidecar)")
+
+
+def _input_options(command):
+    """--fs, --format, --iq-swap and --if: how the samples of an input are laid out, for every command reading one."""
+    for option in reversed((
+            click.option("--fs", "fs_hz", type=float, help="sample rate, Hz (else from the SigMF sidecar)"),
+            click.option("--format", "fmt", help=FORMAT_HELP),
+            click.option("--iq-swap", is_flag=True, help="the front end stores Q before I (spectral inversion)"),
+            click.option("--if", "if_hz", type=float, help="intermediate frequency, Hz"))):
+        command = option(command)
+    return command
 
 
 def _window_options(command):
@@ -156,20 +169,19 @@ def _parse_prns(text: str) -> list[int]:
 
 @main.command()
 @click.argument("file", type=click.Path(dir_okay=False))
-@click.option("--fs", "fs_hz", type=float, help="sample rate, Hz (else from the SigMF sidecar)")
-@click.option("--format", "fmt", help=FORMAT_HELP)
-@click.option("--iq-swap", is_flag=True, help="the front end stores Q before I (spectral inversion)")
-@click.option("--if", "if_hz", type=float, help="intermediate frequency, Hz")
+@_input_options
 @click.option("--prn", "prn_text", default="1-32", show_default=True, help="PRNs to search")
 @click.option("--skip", "--start", "start_s", type=float, default=0.0, show_default=True,
               help="seconds of input to skip (--start: the same)")
-@click.option("--coherent-ms", type=click.IntRange(1, 20), default=2, show_default=True)
-@click.option("--noncoherent", type=click.IntRange(1, 1000), default=5, show_default=True)
-@click.option("--doppler-max", "doppler_max_hz", type=click.FloatRange(0.0, 50000.0), default=6000.0,
+@click.option("--coherent-ms", type=click.IntRange(1, 20), default=ACQUISITION["coherent_ms"], show_default=True)
+@click.option("--noncoherent", type=click.IntRange(1, 1000), default=ACQUISITION["noncoherent"], show_default=True)
+@click.option("--doppler-max", "doppler_max_hz", type=click.FloatRange(0.0, 50000.0),
+              default=ACQUISITION["doppler_max_hz"],
               show_default=True, help="Hz: a receiver on the ground sees under 5 kHz, one at 500 m/s under 7 kHz")
-@click.option("--doppler-step", "doppler_step_hz", type=click.FloatRange(0.0, 5000.0), default=0.0,
+@click.option("--doppler-step", "doppler_step_hz", type=click.FloatRange(0.0, 5000.0),
+              default=ACQUISITION["doppler_step_hz"],
               help="Hz; default 2/3 of 1/coherent")
-@click.option("--pfa", type=click.FloatRange(0.0, 0.5, min_open=True), default=1e-3, show_default=True,
+@click.option("--pfa", type=click.FloatRange(0.0, 0.5, min_open=True), default=ACQUISITION["pfa"], show_default=True,
               help="false-alarm probability per PRN search")
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False), help="write the CAFs of acquired PRNs as PNG")
 def acquire(file, fs_hz, fmt, iq_swap, if_hz, prn_text, start_s, coherent_ms, noncoherent, doppler_max_hz,
@@ -189,8 +201,8 @@ def acquire(file, fs_hz, fmt, iq_swap, if_hz, prn_text, start_s, coherent_ms, no
             samples = source.take(int(round(source.fs_hz * 1e-3)) * coherent_ms * noncoherent)
         finally:
             source.close()
-        step = doppler_step_hz or 2.0 / 3.0 / (coherent_ms * 1e-3)
-        cafs = run_acquisition(samples, source.fs_hz, prns, DopplerGrid(0.0, doppler_max_hz, step), source.if_hz,
+        grid = DopplerGrid.for_coherent(coherent_ms, doppler_max_hz, doppler_step_hz)
+        cafs = run_acquisition(samples, source.fs_hz, prns, grid, source.if_hz,
                                coherent_ms, noncoherent, pfa, excise=True,
                                tail_threshold=True)
     except ValueError as exc:
@@ -219,10 +231,7 @@ def acquire(file, fs_hz, fmt, iq_swap, if_hz, prn_text, start_s, coherent_ms, no
 
 @main.command()
 @click.argument("file", type=click.Path(dir_okay=False))
-@click.option("--fs", "fs_hz", type=float, help="sample rate, Hz (else from the SigMF sidecar)")
-@click.option("--format", "fmt", help=FORMAT_HELP)
-@click.option("--iq-swap", is_flag=True, help="the front end stores Q before I (spectral inversion)")
-@click.option("--if", "if_hz", type=float, help="intermediate frequency, Hz")
+@_input_options
 @click.option("--nav", "nav_path", type=click.Path(dir_okay=False), help="RINEX navigation file (assisted mode)")
 @click.option("--out", "out_dir", default="out/run", show_default=True, type=click.Path(file_okay=False))
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), help="receiver TOML configuration")
@@ -305,10 +314,7 @@ def _fix_streams(mavlink_gps_url, nmea_out_url, rate_hz: float, out_dir: str) ->
 @main.command()
 @click.argument("file", type=click.Path(dir_okay=False))
 @click.option("-o", "--out", "out_path", required=True, type=click.Path(dir_okay=False), help="cleaned IQ file")
-@click.option("--fs", "fs_hz", type=float, help="sample rate, Hz (else from the SigMF sidecar)")
-@click.option("--format", "fmt", help=FORMAT_HELP)
-@click.option("--iq-swap", is_flag=True, help="the front end stores Q before I (spectral inversion)")
-@click.option("--if", "if_hz", type=float, help="intermediate frequency, Hz")
+@_input_options
 @click.option("--adversarial", help="which peak is the attacker's: auto | stronger | later | prn:LIST")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), help="TOML configuration")
 @click.option("--set", "sets", multiple=True, metavar="SECTION.KEY=VALUE", help="override a configuration key")

@@ -204,6 +204,37 @@ def test_fixes_raim_cannot_vouch_for_are_timed_by_the_model():
     assert abs(f.gps_tow_s - true_tow) * 1e9 <= f.tpl_ns
 
 
+def test_ranges_that_may_be_the_attackers_are_no_measurement_of_the_clock():
+    """A fix whose PRNs the defence has not resolved (unvouched: their ranges may all be the attacker's, consistent
+    and wrong) is timed by the model, its 5 us push unseen by it and unalarmed."""
+    guard, _ = _run(20.0, seed=4)
+    f = guard.check(_fix(30.05, BIAS0_NS + DRIFT_NS_S * 20.05 + 5000.0, DRIFT_NS_S, state="recovering"),
+                    float("inf"))
+    assert f.time_state == "holdover" and not guard.guard.alarms
+    true_tow = T0_TOW + 30.05 - (BIAS0_NS + DRIFT_NS_S * 20.05) * 1e-9
+    assert abs(f.gps_tow_s - true_tow) * 1e9 <= f.tpl_ns
+
+
+def test_a_model_fed_merged_ranges_bounds_its_time_by_the_merge_and_holds_none():
+    """Ranges merged with their spoofers' (a time push aligned from before the model started: its delay up to the
+    merged separation, its rate taken for the oscillator's) time the fixes within that much more, and after the
+    clock alarm there is no holdover to vouch for: the model's drift may be the push's."""
+    merged_ns, rate = 489.0, 25.0
+    guard = ClockGuard(StubGuard())
+    out = []
+    for k in range(300):
+        t = 10.0 + k * 0.1
+        true_bias = BIAS0_NS + DRIFT_NS_S * (t - 10.0)
+        pushed = rate * min(t - 10.0, 15.0) + (40.0 * (t - 25.0) ** 2 if t > 25.0 else 0.0)   # ... then faster
+        f = guard.check(_fix(t, true_bias + pushed, DRIFT_NS_S + rate * (t < 25.0)), merged_ns)
+        out.append((f, (f.gps_tow_s - (T0_TOW + t - true_bias * 1e-9)) * 1e9))
+    nominal = [(f, e) for f, e in out if f.time_state in TIME_TRUSTED]
+    assert nominal and all(abs(e) <= f.tpl_ns for f, e in nominal)
+    assert min(f.tpl_ns for f, _ in nominal) >= merged_ns
+    assert guard.guard.alarms and 25.0 <= guard.guard.alarms[0][0] < 27.0
+    assert {f.time_state for f, _ in out if f.t_rx_s > guard.guard.alarms[0][0]} == {"unverified"}
+
+
 # -- the simulator's scenes --------------------------------------------------------------------------------------
 
 def _scene(tmp_path, brdc_path, name, *sets, duration):

@@ -465,6 +465,39 @@ def test_two_carriers_under_one_peak_beat_and_one_does_not():
     assert abs(two_carriers(two) - 23.0) <= 2.0
 
 
+def test_one_beat_on_every_prn_is_a_time_push_and_a_drag_s_beats_are_not():
+    """A delay common to every signal (a time push) beats at one frequency on every PRN; a spoofer dragging the
+    position at v beats at |u_i . v| / lambda plus a common part, different on each line of sight u_i. Measured
+    through the beat test itself, on two carriers under each PRN's prompt, for nine lines of sight spread over the
+    sky: the push's nine beats are one within a bin, a 3 m/s drag's are not, and once a push is known a PRN beating
+    otherwise is left out of it."""
+    from semperfi.defense.beat import BIN_HZ, MIN_COMMON_PRNS, common_beat, two_carriers
+    from semperfi.gps.constants import L1_WAVELENGTH_M
+    rng = np.random.default_rng(8)
+    t = np.arange(2000) * 1e-3
+    az, el = np.radians(np.arange(9) * 40.0 + 7.0), np.radians([15, 70, 35, 50, 25, 80, 40, 20, 60])
+    los = np.column_stack([np.cos(el) * np.sin(az), np.cos(el) * np.cos(az), np.sin(el)])   # ENU
+    drag = np.array([3.0, 0.0, 0.0])
+
+    def beats(relative_hz):
+        out = {}
+        for prn, f_hz in enumerate(relative_hz, start=1):
+            bits = np.repeat(rng.choice([-1.0, 1.0], t.size // 20), 20)
+            noise = 0.1 * (rng.standard_normal(t.size) + 1j * rng.standard_normal(t.size))
+            out[prn] = two_carriers(bits * (1.0 + 0.4 * np.exp(2j * np.pi * f_hz * t)) + noise)
+        return out
+
+    push = beats(np.full(9, 39.4))
+    assert None not in push.values()
+    assert common_beat(push) == (pytest.approx(39.4, abs=BIN_HZ), set(range(1, 10)))
+    dragged = beats(39.4 + los @ drag / L1_WAVELENGTH_M)
+    assert None not in dragged.values() and max(dragged.values()) - min(dragged.values()) > 4 * BIN_HZ
+    assert common_beat(dragged) == (None, set())
+    assert common_beat({p: f for p, f in push.items() if p <= MIN_COMMON_PRNS - 1}) == (None, set())
+    known, prns = common_beat({1: push[1], 2: dragged[2] + 10.0}, known_hz=39.4)
+    assert known == 39.4 and prns == {1}
+
+
 @pytest.mark.parametrize("rectify", ["auto", "always"])
 def test_an_attacker_far_stronger_than_any_satellite_is_alarmed_at_once_and_recovered(tmp_path, brdc_path, rectify):
     """+20 dB, synchronized, 1 km east, from the first sample: the legitimate twins are buried in the attacker's

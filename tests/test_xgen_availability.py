@@ -36,6 +36,30 @@ def test_a_time_push_aligned_from_the_first_sample_keeps_the_fix_from_the_clean_
                 and 20.0 < e["t_rx_s"] < 22.0], "a channel lost at the carrier step"
 
 
+def test_a_time_push_starting_before_the_first_fix_keeps_the_position_and_calls_no_time_good(tmp_path, brdc_path):
+    """The scene itself at +5 dB, aligned from the first sample, pushed at 25 ns/s from 8 s: before the receiver's
+    first fix, with no clock model or earlier lock to tell the two copies apart. Every PRN's prompt beats at the
+    push's 39 Hz alike (a delay common to all: the position unmoved), so they are merged with their twins, not
+    suspected of taking the position anywhere: the first fix comes at most one subframe (6 s, the Costas loop's
+    half-cycle slip at the carrier step may break one subframe's head) after the clean TTFF and every fix from then
+    on is within 10 m, none labelled good (merged ranges are never good); the time is never called good beyond its
+    TPL. Before, the receiver had no fix at all (the suspect tier left every PRN out)."""
+    import json as _json
+
+    from semperfi.eval.grid import Cell, run_cell
+    cell = Cell("push", "boston", "2022/01/01,01:47:21", 0.0, 5.0, 20.0, at_s=8.0, rate=25.0, fs_hz=2e6)
+    clean, attacked = run_cell(cell, brdc_path, tmp_path, keep=False)
+    print(attacked)
+    assert attacked["crash"] is False and attacked["error"] is None, attacked
+    assert attacked["first_fix_s"] is not None and attacked["first_fix_s"] <= clean["first_fix_s"] + 6.5, attacked
+    assert attacked["max_m"] <= 10.0 and attacked["good_fixes"] == 0, attacked
+    assert attacked["good_beyond_tpl"] == 0, attacked
+    out = next(p for p in tmp_path.iterdir() if p.is_dir() and "push" in p.name)
+    events = [_json.loads(line) for line in open(out / "events.jsonl")]
+    common = [e for e in events if e["event"] == "common_beat"]
+    assert common and 8.0 < common[0]["t_rx_s"] < 9.5 and abs(common[0]["push_ns_s"] - 25.0) < 2.0, common
+
+
 def test_a_far_stronger_attacker_whose_weak_twins_hide_in_the_residues_is_not_taken_as_aligned(tmp_path, brdc_path):
     """+20 dB, 500 m east, the scene starting 4 min 7 s into the day (subframe 2): after the power cancellations the
     weakest legitimate twins stand 2.6 detection thresholds above the floor the residues raise. Taken for "nothing

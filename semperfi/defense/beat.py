@@ -6,6 +6,12 @@ v / 0.19 m (42 Hz at 8 m/s), long before the two code phases part by the fractio
 resolve (10 m of drag is 0.03 chip). The tracked prompt then holds both carriers: its power beats at their Doppler
 difference, as deep as twice the weaker signal's amplitude over the stronger's. One signal alone, or with the slow
 fringes of a static antenna's multipath, shows no such line.
+
+A drag's beats differ from PRN to PRN: satellite i's is (u_i . v) / lambda plus what is common to all (u_i its line
+of sight). The same beat on every PRN is a relative velocity of zero -- with five lines of sight or more, (u_i . v)
+equal for all of them leaves v = 0 -- a delay common to every signal: a time push, which leaves the position where
+it was. Those PRNs are aligned with their twins (merged: the range within the detector's merged separation of the
+legitimate one until the two part, never a good fix), not a spoofer taking the position anywhere.
 """
 
 import numpy as np
@@ -15,6 +21,8 @@ WINDOW_MS = 500         # the window each test looks at (2 Hz resolution)
 MIN_BEAT_HZ = 4.0       # slower fading is the antenna's multipath or the signal's own C/N0 drift
 MIN_LINE_RATIO = 30.0   # the line over the median bin: noise alone reaches 30 with probability ~1e-7 per window
 MIN_DEPTH = 0.3         # the power's modulation depth: a second carrier within ~10 dB of the tracked one
+BIN_HZ = 1e3 / WINDOW_MS   # a window's frequency resolution: one beat measured on two PRNs may fall a bin apart
+MIN_COMMON_PRNS = 5     # lines of sight enough that one beat on all of them pins the relative velocity to zero
 
 
 def beat(prompts: np.ndarray) -> tuple[float, float, float]:
@@ -39,3 +47,16 @@ def two_carriers(prompts: np.ndarray) -> float | None:
         return None
     f_hz, ratio, depth = beat(prompts[-WINDOW_MS:])
     return f_hz if ratio >= MIN_LINE_RATIO and depth >= MIN_DEPTH else None
+
+
+def common_beat(beats: dict[int, float], known_hz: float | None = None) -> tuple[float | None, set[int]]:
+    """(the beat shared by MIN_COMMON_PRNS PRNs or more, within a bin of their median -- else known_hz, a common beat
+    found before --, the PRNs within a bin of it). A PRN whose beat is further off has a spoofer moving otherwise."""
+    if len(beats) >= MIN_COMMON_PRNS:
+        median = float(np.median(list(beats.values())))
+        near = {p for p, f in beats.items() if abs(f - median) <= BIN_HZ}
+        if len(near) >= MIN_COMMON_PRNS:
+            return median, near
+    if known_hz is None:
+        return None, set()
+    return known_hz, {p for p, f in beats.items() if abs(f - known_hz) <= BIN_HZ}

@@ -82,6 +82,7 @@ class ClockGuard:
         self.started_s: float | None = None
         self.alarm_t_s: float | None = None      # the time is held since then (None: not held after an alarm)
         self.floor_ns = 0.0
+        self.tainted_ns = 0.0    # the most that ranges the model took in may have been off together (unvouched_ns)
         self._absorbed = (None, np.zeros((2, 2)))   # (t, K S K') of the last accepted update
         self._agreeing_since: float | None = None
         self._k_md = float(-special.ndtri(config.pmd / 2.0))
@@ -90,18 +91,21 @@ class ClockGuard:
         self.n_alarms = 0
 
     # -- the per-fix hook ----------------------------------------------------------------------------------
-    def check(self, fix: Fix) -> Fix:
-        """The fix with its time_state and tpl_ns (and its time held on the model's prediction in holdover)."""
+    def check(self, fix: Fix, unvouched_ns: float = 0.0) -> Fix:
+        """The fix with its time_state and tpl_ns (and its time held on the model's prediction in holdover).
+        unvouched_ns: how far the fix's ranges may all be off together, beyond their noise, by what the defence has
+        not resolved -- 0 when its position is good, the merged separation when its unresolved PRNs are merged with
+        their twins (a time push's aligned start), inf when they may be the attacker's (then no measurement)."""
         if self.guard.d["mode"] == "off":
             return fix
         c = self.cfg
         t = fix.t_rx_s
         z = (fix.clock_bias_m * NS_PER_M, fix.clock_drift_m_s * NS_PER_M,
              float(np.hypot(fix.clock_sigma_ns, c.bias_floor_ns)), c.drift_sigma_ns_s)
-        measured = trusted(fix.raim) and all(np.isfinite(z[i]) for i in (0, 2))
+        measured = trusted(fix.raim) and np.isfinite(unvouched_ns) and all(np.isfinite(z[i]) for i in (0, 2))
         if not self.model.started:
             if measured:
-                self._accept(t, z)
+                self._accept(t, z, unvouched_ns)
                 self.started_s = t
             return replace(fix, time_state="unverified")
         warm = t - self.started_s >= c.warmup_s
@@ -121,7 +125,7 @@ class ClockGuard:
                     self._absorbed = (ref[0], ref[3])
                 return self._held(fix)
             carried = self._carried_ns(t)
-            self._accept(t, z)
+            self._accept(t, z, unvouched_ns)
             if not warm:
                 return replace(fix, time_state="unverified")
             return replace(fix, time_state="nominal", tpl_ns=self._tpl(fix, inn, carried))
@@ -136,7 +140,8 @@ class ClockGuard:
         return self._held(fix)
 
     # -- what it does --------------------------------------------------------------------------------------
-    def _accept(self, t: float, z) -> None:
+    def _accept(self, t: float, z, unvouched_ns: float = 0.0) -> None:
+        self.tainted_ns = max(self.tainted_ns, unvouched_ns)
         absorbed = self.model.update(t, *z)
         if absorbed is not None:
             self._absorbed = (t, absorbed)
@@ -152,10 +157,13 @@ class ClockGuard:
     def _tpl(self, fix: Fix, inn: Innovation, carried_ns: float) -> float:
         raim = fix.tpl_ns if np.isfinite(fix.tpl_ns) else 0.0   # a fix without redundancy: the clock test alone
         return float(raim + pbias(inn.dof, self.pfa_test, self.cfg.pmd) * inn.sigma_step_ns + carried_ns
-                     + self.floor_ns)
+                     + self.floor_ns + self.tainted_ns)
 
     def _held(self, fix: Fix) -> Fix:
-        """The fix timed by the model's prediction; its position (from the ranges) untouched."""
+        """The fix timed by the model's prediction; its position (from the ranges) untouched. A model that took in
+        merged ranges holds no time to vouch for: a push under way before it began is in its drift."""
+        if self.tainted_ns > 0:
+            return replace(fix, time_state="unverified")
         x, p = self.model.predict(fix.t_rx_s)
         tpl = self._k_md * float(np.sqrt(p[0, 0])) + self._carried_ns(fix.t_rx_s) + self.floor_ns
         week, tow = divmod(fix.gps_tow_s + (fix.clock_bias_m * NS_PER_M - x[0]) * 1e-9, SECONDS_PER_WEEK)
@@ -180,6 +188,7 @@ class ClockGuard:
         stays in the floor of every later TPL."""
         accepted = pbias(inn.dof, self.pfa_test, self.cfg.pmd) * inn.sigma_step_ns
         self.floor_ns += accepted
+        self.tainted_ns = 0.0   # the clean ranges agree with the model: what is left of it is in the floor
         x, p = self.model.predict(fix.t_rx_s)
         self.model.reseed(fix.t_rx_s, x, p)
         self._accept(fix.t_rx_s, z)

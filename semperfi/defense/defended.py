@@ -11,7 +11,7 @@ from ..gps.constants import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, L1_HZ, SPEED_
 from ..receiver.acquisition import Peak
 from ..receiver.chain import Receiver
 from ..receiver.integrity import trusted
-from ..receiver.types import Fix
+from ..receiver.types import TRUSTED_STATES, Fix
 from .beat import WINDOW_MS as BEAT_WINDOW_MS, two_carriers
 from .canceller import JOINT_WITHIN_CHIPS
 from .clock_guard import ClockGuard
@@ -334,7 +334,19 @@ class DefendedReceiver:
                 self.events.emit("recovered", fix.t_rx_s, time_to_recover_s=round(fix.t_rx_s - g.alarm_t_s, 2),
                                  state=state)
         if self.on_fix is not None:
-            self.on_fix(self.clock.check(replace(fix, state=state)))   # its time: defense/clock_guard
+            self.on_fix(self.clock.check(replace(fix, state=state), self._unvouched_ns(fix, state)))
+
+    def _unvouched_ns(self, fix: Fix, state: str) -> float:
+        """How far a fix's ranges may all be off together by what the defence has not resolved (its time's share,
+        defense/clock_guard): nothing when its position is good or no attack is known, the merged separation when
+        every PRN not resolved is known to lie within it of its twin, else unbounded (they may be the attacker's)."""
+        g = self.guard
+        if state in TRUSTED_STATES or g.alarm_t_s is None:
+            return 0.0
+        if set(fix.prns) & self.inner.distrusted_prns or not all(g.resolved(p) or g.within_merged(p, fix.t_rx_s)
+                                                                 for p in fix.prns):
+            return float("inf")
+        return g.detector.cfg.merged_separation_chips / CA_CHIP_RATE_HZ * 1e9
 
     def _note_rectified(self, prns: set[int], t_s: float) -> None:
         """An event when a PRN's range starts or stops being timed by its spoofer's navigation message."""

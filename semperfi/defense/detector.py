@@ -205,6 +205,9 @@ class SpoofingDetector:
         self.streak: dict[int, int] = {}
         self.alarmed: set[int] = set()
         self.merged: set[int] = set()            # PRNs whose attacker is aligned with the twin (the guard's)
+        # merged PRNs whose twin is known to lie closer than merged_separation_chips whatever the fit says (the
+        # guard's: a time push's beat gives their separation, the fit this close only its own minimum spacing)
+        self.held: set[int] = set()
         self.first_alarm_s: float | None = None
         self.single_looks: dict[int, int] = {}   # PRN -> consecutive sensitive looks that found one signal only
         self.close: dict[int, PeakPair] = {}     # PRN -> a second signal under its peak, closer than the separation
@@ -272,7 +275,8 @@ class SpoofingDetector:
                 # to it (seen on GPS-SDR-SIM: 42 dB-Hz PRNs beside 60 dB-Hz spoofers, a "path" 12 dB down)
                 pairs = [hidden] if hidden and not is_cross_talk(hidden.auxiliary, caf, cafs, self.cfg, self.fs_hz,
                                                                  block_s=TWO_PATH_BLOCK_S) else []
-            if prn in self.merged and pairs and pairs[0].separation_chips < self.cfg.merged_separation_chips:
+            if prn in self.merged and pairs and (pairs[0].separation_chips < self.cfg.merged_separation_chips
+                                                 or prn in self.held):
                 pairs = []
             peaks = [caf.best] + [p.auxiliary for p in pairs]
             tracks = self._follow(prn, [pairs[0].main, pairs[0].auxiliary] if pairs else peaks[:1], t_s)

@@ -11,7 +11,9 @@ from dataclasses import replace
 import numpy as np
 
 from ..gps.codes import chips_offset
+from ..gps.constants import CA_CHIP_RATE_HZ, L1_HZ
 from ..receiver.acquisition import DopplerGrid, Peak, acquire
+from .beat import BIN_HZ, WINDOW_MS as BEAT_WINDOW_MS, common_beat
 from .canceller import JOINT_WITHIN_CHIPS, Canceller, CancellerConfig, caf_amplitude, refine_peak
 from .detector import (Alarm, DetectorConfig, SpoofingDetector, auxiliary_peaks, examinable, in_units_of,
                        is_cross_talk)
@@ -46,6 +48,8 @@ DEEP_NONCOHERENT = 10
 DEEP_SPAN_HZ = 250.0      # a twin's Doppler is within a few hertz of a static spoofer's; a moving one's is found by
 DEEP_STEP_HZ = 50.0       # the full searches
 DEEP_CROSS_TALK_BLOCK_S = 1e-3   # cross-talk judged per code period (is_cross_talk): the strong signals' bit flips
+BEAT_STALE_S = 1.0     # a time push's beat unseen on a PRN this long: its separation is no longer known
+COMMON_WAIT_S = 1.0    # a beat on a few PRNs alike, no alarm yet: how long the others have to show it too
 MAX_SWAPS = 2          # a PRN whose cancelled peak is found legitimate this often is given up
 EXAMINE_MAX_PEAKS = 16  # a strong spoofer's Doppler and code sidelobes are local maxima too: room for its twin
 
@@ -109,6 +113,12 @@ class SpoofGuard:
         # a spoofer was seen parting from signals it had been aligned with: a PRN's lone peak that predates the
         # attack may still be the two merged
         self.takeover = False
+        # a beat shared by the PRNs (beat.common_beat): a time push's, and the PRNs merged because of it
+        self.push_beat_hz: float | None = None
+        self._merged_by_beat: set[int] = set()
+        self._first_beat_s: float | None = None
+        self._push_onset_s: float | None = None
+        self._beat_seen_s: dict[int, float] = {}         # merged PRN -> when its beat was last seen the common one
         self._startup_samples = int(self.d["startup_s"] * fs_hz)
         self._held: list[np.ndarray] = []
         self._last_cafs: dict = {}
@@ -202,6 +212,7 @@ class SpoofGuard:
         if self.maneuver is not None and self.maneuver.due_to_start(t_s):
             self._follow_through_maneuver(cafs)
         self._check_power(cafs, t_s)
+        self.detector.held = self._held_by_beat(t_s)
         for alarm in self.detector.examine(cafs, t_s, x if self.detector.sensitive else x[:self.window // 2]):
             self._alarm(alarm.prn, t_s, alarm.pair.as_event())
             if self.d["mode"] == "full":
@@ -268,14 +279,55 @@ class SpoofGuard:
 
     def beat_alarm(self, beats: dict[int, float], t_s: float) -> None:
         """Two carriers under the receiver's tracked peaks (beat): the attack is known, those PRNs are not resolved,
-        and every PRN is examined at the highest sensitivity from now on, for the two peaks to part."""
+        and every PRN is examined at the highest sensitivity from now on, for the two peaks to part. The PRNs sharing
+        one beat (beat.common_beat: a delay common to all, a time push) are merged with their twins, the others'
+        spoofers move the position; a merged PRN whose beat leaves the common one is no longer merged. A few PRNs
+        sharing a beat, before any alarm, wait up to COMMON_WAIT_S for the others to show it too."""
+        common_hz, common = common_beat(beats, self.push_beat_hz)
+        alike = max(beats.values()) - min(beats.values()) <= BIN_HZ
+        if common_hz is None and self.alarm_t_s is None and alike:
+            self._first_beat_s = t_s if self._first_beat_s is None else self._first_beat_s
+            if t_s - self._first_beat_s < COMMON_WAIT_S:
+                return
+        if common_hz is not None and self.push_beat_hz is None:
+            self._push_onset_s = t_s - BEAT_WINDOW_MS * 1e-3   # the beat filled the window it was found in
+            self._emit("common_beat", t_s, beat_hz=round(common_hz, 1), prns=sorted(common),
+                       push_ns_s=round(common_hz / L1_HZ * 1e9, 1))
+        self.push_beat_hz = common_hz
+        self._beat_seen_s.update(dict.fromkeys(common, t_s))
         for prn, f_hz in beats.items():
             if prn in self.alarmed_prns:
+                if prn in self.merged and prn in common:
+                    self._merged_by_beat.add(prn)   # merged already (on power): the push's beat says how far apart
+                elif prn in self.merged and prn in self._merged_by_beat:
+                    self._merged_by_beat.discard(prn)
+                    self._alarm(prn, t_s, {"found_by": "beat", "beat_hz": round(f_hz, 1), "common": False})
                 continue
             self.takeover = True
             if not self.detector.sensitive:
                 self.detector.first_alarm_s = t_s
-            self._alarm(prn, t_s, {"found_by": "beat", "beat_hz": round(f_hz, 1)})
+            self._alarm(prn, t_s, {"found_by": "beat", "beat_hz": round(f_hz, 1), "common": prn in common})
+            if prn in common:
+                self.merged.add(prn)
+                self._merged_by_beat.add(prn)
+
+    def _held_by_beat(self, t_s: float) -> set[int]:
+        """The PRNs merged with a time push's beat while the push has moved their spoofers less than the merged
+        separation from their twins (its rate times the time since it began): the two-path fit this close says only
+        its own minimum spacing, and a cancellation on it would take the twin apart."""
+        if self._push_onset_s is None:
+            return set()
+        chips_per_s = self.push_beat_hz / L1_HZ * CA_CHIP_RATE_HZ
+        if chips_per_s * (t_s - self._push_onset_s) >= self.detector.cfg.merged_separation_chips:
+            return set()
+        return self._merged_by_beat & self.merged
+
+    def within_merged(self, prn: int, t_s: float) -> bool:
+        """Whether a PRN's range is known to lie within the merged separation of its twin's: merged, and either
+        watched by the fit (it alarms past that separation) or, held from it, still beating with the push (the
+        beat gone, the separation is no longer known: the attacker may have stopped, or moves the code alone)."""
+        return prn in self.merged and (prn not in self.detector.held
+                                       or t_s - self._beat_seen_s.get(prn, -np.inf) <= BEAT_STALE_S)
 
     def clock_alarm(self, t_s: float, event: dict) -> None:
         """The receiver clock moved as its oscillator cannot (defense/clock_guard): every range delayed alike, a
@@ -296,7 +348,12 @@ class SpoofGuard:
 
     def _on_alarm(self, alarm: Alarm, t_s: float) -> None:
         """Cancel the attacker's peak; when that would be a guess and a maneuver is still to come, wait for it."""
-        choice = choose(alarm, self.policy, self.policy_prns)
+        if alarm.prn in self._merged_by_beat and self.policy == "auto":
+            # its twin parted under a time push: any one side on every PRN gives the true position, so the same
+            # side on every PRN, whatever their powers
+            choice = choose(alarm, "later")
+        else:
+            choice = choose(alarm, self.policy, self.policy_prns)
         if choice is not None and choice.guessed and self.attacker_stronger is not None:
             choice = by_power(alarm, self.attacker_stronger, self._inference) or choice
         if choice is not None and choice.guessed and self.continuing is not None:

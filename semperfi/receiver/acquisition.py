@@ -25,6 +25,13 @@ class DopplerGrid:
     max_hz: float = 5000.0
     step_hz: float = 250.0
 
+    @classmethod
+    def for_coherent(cls, coherent_ms: int, max_hz: float, step_hz: float = 0.0, center_hz: float = 0.0
+                     ) -> "DopplerGrid":
+        """The grid for a coherent integration: step_hz 0 means two thirds of 1 / coherent time (a signal between
+        two bins loses under 1.7 dB)."""
+        return cls(center_hz, max_hz, step_hz or 2.0 / 3.0 / (coherent_ms * 1e-3))
+
     def values_hz(self) -> np.ndarray:
         n = int(np.floor(self.max_hz / self.step_hz + 1e-9))
         return self.center_hz + self.step_hz * np.arange(-n, n + 1)

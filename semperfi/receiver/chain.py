@@ -124,8 +124,8 @@ class Receiver:
     # -- acquisition ----------------------------------------------------------------------------------------
     def _search(self, samples: np.ndarray, prns: list[int], center_hz: float = 0.0, span_hz: float | None = None):
         a = self.cfg["acquisition"]
-        step = a["doppler_step_hz"] or 2.0 / 3.0 / (a["coherent_ms"] * 1e-3)
-        grid = DopplerGrid(center_hz, span_hz or a["doppler_max_hz"], step)
+        grid = DopplerGrid.for_coherent(a["coherent_ms"], span_hz or a["doppler_max_hz"], a["doppler_step_hz"],
+                                        center_hz)
         cafs = acquire(samples, self.fs_hz, prns, grid, self.if_hz, a["coherent_ms"], a["noncoherent"], a["pfa"],
                        a["max_peaks"], excise=True)
         if cafs:
@@ -324,8 +324,9 @@ class Receiver:
         soft, first = ch.take_bits()
         if soft.size == 0:
             return
+        # a subframe is reported when it is decoded: its start may lie beyond the channel's history
+        t_s = ch.st[NEXT_SAMPLE] / self.fs_hz
         for ev in self.decoders[prn].push_bits(soft, first):
-            t_s = ch.epoch_sample[ch.ms_of_bit(ev.start_bit_index) % ch.HISTORY_MS] / self.fs_hz
             self.stats.subframes += ev.accepted
             self.subframes_by_prn[prn] = self.subframes_by_prn.get(prn, 0) + ev.accepted
             self.stats.parity_errors += ev.parity_errors

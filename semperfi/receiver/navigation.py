@@ -43,6 +43,7 @@ from ..gps.time import GpsTime
 BIT_S = 0.020                         # one LNAV data bit (50 bit/s)
 SUBFRAME_HEAD_BITS = 60               # TLM + HOW
 PIECE_BITS = 1024                     # input is taken in pieces of at most this many bits
+CONFIRM_SUBFRAMES = 2                 # a head is confirmed by another at most this many subframes away
 KEEP_BEHIND_BITS = 2 * BITS_PER_SUBFRAME + 2   # in sync: the last two subframes and the two bits before them
 MAX_BUFFER_BITS = KEEP_BEHIND_BITS + BITS_PER_SUBFRAME + PIECE_BITS   # the rolling buffer never holds more
 TOW_TOLERANCE_S = 1e-3                # TOW vs anchor extrapolated by bit count (both are exact multiples of 20 ms)
@@ -240,9 +241,13 @@ class NavDecoder:
         return tow, subframe_id
 
     def _search(self) -> bool:
-        """Scan for a confirmed frame start; True (and in sync) when one is found."""
+        """Scan for a confirmed frame start; True (and in sync) when one is found. A head (TLM and HOW, each with
+        good parity) is confirmed by another up to CONFIRM_SUBFRAMES subframes before or after it whose TOW and
+        subframe ID follow from its own: a half-cycle slip of the Costas loop inside one head (a spoofer's carrier
+        stepping beside the tracked one) breaks that head, not the frame. A channel with no time yet takes it from
+        the confirmed head at once (the anchor), before its subframe is whole."""
         lo = max(self._search_from, self._buf_start)
-        hi = self._end - BITS_PER_SUBFRAME - SUBFRAME_HEAD_BITS   # last start whose confirmation is all here
+        hi = self._end - SUBFRAME_HEAD_BITS   # last start whose head is all here
         if hi < lo:
             return False
         seg = self._buf[lo - self._buf_start:hi - self._buf_start + 8].astype(np.int64)
@@ -255,12 +260,18 @@ class NavDecoder:
             head = self._head(p, pol)
             if head is None:
                 continue
-            following = self._head(p + BITS_PER_SUBFRAME, pol)
-            if following == ((head[0] + 1) % SUBFRAMES_PER_WEEK, head[1] % 5 + 1):
-                self._sync, self._pol, self._next_sf = True, pol, p
-                self._bad_run, self._first_bad = 0, None
-                return True
-        self._search_from = hi + 1
+            for k in (*range(1, CONFIRM_SUBFRAMES + 1), *range(-1, -CONFIRM_SUBFRAMES - 1, -1)):
+                q = p + k * BITS_PER_SUBFRAME
+                if q < self._buf_start or q + SUBFRAME_HEAD_BITS > self._end:
+                    continue
+                if self._head(q, pol) == ((head[0] + k) % SUBFRAMES_PER_WEEK, (head[1] - 1 + k) % 5 + 1):
+                    self._sync, self._pol, self._next_sf = True, pol, p
+                    self._bad_run, self._first_bad = 0, None
+                    if self._anchor is None:   # a time scale already held moves only on whole subframes
+                        self._anchor = (p, float((head[0] - 1) * 6 % SECONDS_PER_WEEK))
+                    return True
+        # starts that may still be confirmed by a head further on are searched again
+        self._search_from = max(lo, self._end - CONFIRM_SUBFRAMES * BITS_PER_SUBFRAME - SUBFRAME_HEAD_BITS + 1)
         return False
 
     def _lose_sync(self, search_from: int) -> None:
