@@ -29,7 +29,7 @@ sys.path.insert(0, str(REPO))
 
 import numpy as np   # noqa: E402
 
-from semperfi.cli import _receiver_config   # noqa: E402
+from semperfi.defense.config import load_config   # noqa: E402
 from semperfi.defense.canceller import Canceller, refine_peak   # noqa: E402
 from semperfi.defense.defended import DefendedReceiver   # noqa: E402
 from semperfi.eval.crosscheck import read_truth   # noqa: E402
@@ -113,7 +113,7 @@ def recovery_times(work: Path) -> None:
         simulate_to_file(cfg, path)
         out = work / f"out-{path.stem}"
         t0 = time.perf_counter()
-        run_file(path, None, None, None, _receiver_config(None, ['defense.mode="full"']), out, str(BRDC),
+        run_file(path, None, None, None, load_config(None, ['defense.mode="full"']), out, str(BRDC),
                  receiver_factory=DefendedReceiver)
         wall = time.perf_counter() - t0
         events = [json.loads(line) for line in open(out / "events.jsonl")]

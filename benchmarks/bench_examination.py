@@ -19,7 +19,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from semperfi.cli import _receiver_config   # noqa: E402
+from semperfi.defense.config import load_config   # noqa: E402
 from semperfi.defense.defended import DefendedReceiver   # noqa: E402
 from semperfi.receiver.run import run_file   # noqa: E402
 from semperfi.sim.run import simulate_to_file   # noqa: E402
@@ -37,7 +37,7 @@ def timed_run(path: Path, out: Path, mode: str, repeat: int) -> tuple[float, flo
     best_wall = best_cpu = float("inf")
     for _ in range(repeat):
         w, c = time.perf_counter(), _cpu_s()
-        run_file(path, None, None, None, _receiver_config(None, [f'defense.mode="{mode}"']), out, str(BRDC),
+        run_file(path, None, None, None, load_config(None, [f'defense.mode="{mode}"']), out, str(BRDC),
                  receiver_factory=DefendedReceiver)
         best_wall, best_cpu = min(best_wall, time.perf_counter() - w), min(best_cpu, _cpu_s() - c)
     return best_wall, best_cpu

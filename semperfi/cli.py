@@ -264,6 +264,7 @@ def run(file, fs_hz, fmt, iq_swap, if_hz, nav_path, out_dir, config_path, defens
     PVT; fixes.csv, NMEA, GPX, GeoJSON, RINEX observations, events.jsonl in --out."""
     import functools
 
+    from .defense.config import load_config
     from .defense.defended import DefendedReceiver
     from .defense.imu_track import read_imu_csv
     from .receiver.run import run_file
@@ -271,7 +272,7 @@ def run(file, fs_hz, fmt, iq_swap, if_hz, nav_path, out_dir, config_path, defens
     sets = (list(sets) + [f'defense.mode="{defense}"'] * bool(defense)
             + [f'defense.adversarial="{adversarial}"'] * bool(adversarial))
     try:
-        cfg = _receiver_config(config_path, sets)
+        cfg = load_config(config_path, sets)
         imu = read_imu_csv(imu_path).shifted(-skip_s) if imu_path else None   # its t_s counts from FILE's start
         link = _flight_link(link_addr, link_key_path)
         streams = _fix_streams(mavlink_gps_url, nmea_out_url, fix_rate_hz, out_dir)
@@ -325,10 +326,11 @@ def clean(file, out_path, fs_hz, fmt, iq_swap, if_hz, adversarial, config_path, 
     to OUT (same format and rate; complex integers after --fs-out or from packed input), for any receiver; events go
     to OUT's stem + .events.jsonl."""
     from .defense.clean import clean_file
+    from .defense.config import load_config
 
     sets = ['defense.mode="full"'] + list(sets) + [f'defense.adversarial="{adversarial}"'] * bool(adversarial)
     try:
-        cfg = _receiver_config(config_path, sets)
+        cfg = load_config(config_path, sets)
         s = clean_file(file, out_path, _sample_format(fmt, iq_swap), fs_hz, if_hz, cfg, progress=sys.stderr.isatty(),
                        skip_s=skip_s, duration_s=duration_s, fs_out_hz=fs_out_hz)
     except (ValueError, OSError) as exc:
@@ -395,14 +397,11 @@ def _flight_link(addr, key_path):
     """The receiver's end of the link to the flight side, or None."""
     if not addr:
         return None
-    from .flight.link import LinkError, LinkPeer
+    from .flight.link import LinkPeer
     host, _, port = addr.rpartition(":")
     if not host or not port.isdigit() or not 0 < int(port) < 65536:
         raise ValueError(f"--link wants HOST:PORT, got {addr!r}")
-    try:
-        return LinkPeer.connect(host, int(port), _read_key(key_path))
-    except LinkError as exc:
-        raise ValueError(str(exc)) from None
+    return LinkPeer.connect(host, int(port), _read_key(key_path))   # LinkError: a BadInput, told in one line
 
 
 def _sample_format(fmt, iq_swap: bool):
@@ -413,15 +412,6 @@ def _sample_format(fmt, iq_swap: bool):
     if fmt is None:
         raise ValueError("--iq-swap needs --format (the swap is part of how the samples are laid out)")
     return with_iq_swap(fmt)
-
-
-def _receiver_config(path, sets) -> dict:
-    from . import config
-    from .defense.config import DEFAULTS as DEFENSE, DOMAINS as DEFENSE_DOMAINS
-    from .receiver.config import DEFAULTS as RECEIVER, DOMAINS as RECEIVER_DOMAINS
-    cfg = config.load({**RECEIVER, **DEFENSE}, path, sets)
-    config.check_domains(cfg, {**RECEIVER_DOMAINS, **DEFENSE_DOMAINS})
-    return cfg
 
 
 def _print_run_summary(summary) -> None:
@@ -483,7 +473,7 @@ def fly(url, out_path, timeout_s) -> None:
 
     from .flight.deadreckoning import ins_error_bound_m, write_track_csv
     from .flight.maneuver import ManeuverLimits, draw
-    from .flight.mavlink_pilot import Pilot, PilotError, check_vehicle_url
+    from .flight.mavlink_pilot import Pilot, check_vehicle_url
 
     try:
         check_vehicle_url(url)
@@ -503,7 +493,7 @@ def fly(url, out_path, timeout_s) -> None:
             flown = pilot.fly(maneuver)
         finally:
             pilot.close()
-    except (PilotError, ValueError, RuntimeError, OSError) as exc:
+    except (ValueError, RuntimeError, OSError) as exc:   # PilotError is a ValueError (errors.BadInput)
         _fail(f"flight over {url} failed: {exc}")
     end = flown.ins.pos_ned_m[-1] - flown.ins.pos_ned_m[0]
     t_end = flown.ins.t_s[-1]
@@ -527,7 +517,6 @@ def companion(port, link_key_path, url, maneuvers, test_seed) -> None:
     import random
 
     from .flight.companion import serve
-    from .flight.link import LinkError
     from .flight.mavlink_pilot import check_vehicle_url
 
     def report(event: dict) -> None:
@@ -538,7 +527,7 @@ def companion(port, link_key_path, url, maneuvers, test_seed) -> None:
         check_vehicle_url(url)
         serve(port, _read_key(link_key_path), url, report, max_maneuvers=maneuvers,
               rng=random.Random(test_seed) if test_seed is not None else None)
-    except (LinkError, ValueError, OSError) as exc:
+    except (ValueError, OSError) as exc:
         _fail(str(exc))
 
 
@@ -610,7 +599,7 @@ def evaluate(spec_path, nav_path, out_dir, ray_address, pool, workers, only_id) 
     import json
     import time
 
-    from .eval.sweep import SweepError, load_spec, ray_available, read_results, run_only, run_sweep
+    from .eval.sweep import load_spec, ray_available, read_results, run_only, run_sweep
     from .eval.sweep_report import render_report
     try:
         spec = load_spec(spec_path)
@@ -637,9 +626,7 @@ def evaluate(spec_path, nav_path, out_dir, ray_address, pool, workers, only_id) 
         report = render_report(read_results(f"{out_dir}/results.csv"), out_dir)
         click.echo(f"{summary.cells} cells: {summary.skipped} already done, {summary.ran} run on {summary.backend}, "
                    f"{summary.failed} failed; {report}")
-    except SweepError as exc:
-        _fail(str(exc))
-    except (ValueError, OSError) as exc:
+    except (ValueError, OSError) as exc:   # SweepError too (errors.BadInput)
         _fail(str(exc), getattr(exc, "exit_code", EXIT_BAD_INPUT))
 
 
@@ -651,13 +638,11 @@ def report(results, out_dir) -> None:
     """Render a sweep's report from its results table (CSV or Parquet) without running anything."""
     from pathlib import Path
 
-    from .eval.sweep import SweepError, read_results
+    from .eval.sweep import read_results
     from .eval.sweep_report import render_report
     try:
         click.echo(render_report(read_results(results), out_dir or Path(results).parent))
-    except SweepError as exc:
-        _fail(str(exc))
-    except (ValueError, OSError) as exc:
+    except (ValueError, OSError) as exc:   # SweepError too (errors.BadInput)
         _fail(str(exc))
 
 

@@ -18,6 +18,11 @@ class SemperFiError(Exception):
     exit_code = EXIT_BAD_INPUT
 
 
+class BadInput(SemperFiError, ValueError):
+    """An input that cannot be used as given: a user's mistake, or a file, stream, peer or tool that failed or sent
+    what cannot be (hostile or broken, told apart by the message, not the exit code)."""
+
+
 class NoSignal(SemperFiError, ValueError):
     """Nothing could be tracked: almost always a wrong sample rate, format or IF, else interference."""
 

@@ -87,9 +87,9 @@ def test_the_ins_displacement_moves_the_prediction():
 
 
 def test_a_guess_continuity_confirms_is_resolved_and_one_it_refutes_is_swapped_then_given_up():
-    from semperfi.cli import _receiver_config
+    from semperfi.defense.config import load_config
     from semperfi.defense.guard import MAX_SWAPS, SpoofGuard
-    guard = SpoofGuard(_receiver_config(None, []), 2e6)
+    guard = SpoofGuard(load_config(None, []), 2e6)
 
     def cancelled_on_a_guess(prn):   # cancelled on the stronger-peak guess and verified clean after it
         guard.alarmed_prns.add(prn)

@@ -5,7 +5,7 @@ instead of passing through `clean` to the receiver behind it (GPS-SDR-SIM, path 
 import numpy as np
 import pytest
 
-from semperfi.cli import _receiver_config
+from semperfi.defense.config import load_config
 from semperfi.defense import guard as guard_module
 from semperfi.defense.guard import SpoofGuard
 from semperfi.gps.codes import ca_code, chips_apart
@@ -48,7 +48,7 @@ def samples():
 
 def _guard_over(samples) -> Events:
     events = Events()
-    guard = SpoofGuard(_receiver_config(None, []), FS, 0.0, events)
+    guard = SpoofGuard(load_config(None, []), FS, 0.0, events)
     for i in range(0, samples.size, CHUNK):
         guard.push(samples[i:i + CHUNK])
     guard.flush()

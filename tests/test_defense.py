@@ -7,7 +7,7 @@ import time
 import numpy as np
 import pytest
 
-from semperfi.cli import _receiver_config
+from semperfi.defense.config import load_config
 from semperfi.defense.canceller import (Canceller, caf_amplitude, refine_peak, replicas_reference, residuals,
                                         subtract_replicas)
 from semperfi.defense.defended import DefendedReceiver
@@ -278,7 +278,7 @@ def test_one_spoofed_prn_at_6_db_is_attenuated_by_20_db(tmp_path, time_offset_s)
 
 
 def _run_defended(path, out, *sets, nav=None):
-    cfg = _receiver_config(None, ['defense.mode="full"', *sets])
+    cfg = load_config(None, ['defense.mode="full"', *sets])
     t0 = time.perf_counter()
     summary = run_file(path, None, None, None, cfg, out, nav, receiver_factory=DefendedReceiver)
     events = [json.loads(line) for line in open(out / "events.jsonl")]
@@ -406,7 +406,7 @@ def test_clean_on_real_if_samples_removes_the_spoofer_and_its_mirror(tmp_path):
                                "attacker.time_offset_s=5e-6"])
     simulate_to_file(cfg, tmp_path / "r.bin")
     summary = clean_file(tmp_path / "r.bin", tmp_path / "out.bin", None, None, None,
-                         _receiver_config(None, ['defense.mode="full"']))
+                         load_config(None, ['defense.mode="full"']))
     assert summary.cancelled, summary
     original, cleaned = open_iq(tmp_path / "r.bin"), open_iq(tmp_path / "out.bin")
     assert cleaned.fmt.name == "short" and cleaned.n_samples == original.n_samples

@@ -127,7 +127,7 @@ def test_fuzzed_rinex_navigation_files_are_read_or_refused(tmp_path, brdc_path):
 
 def test_fuzzed_toml_and_set_overrides_are_taken_or_refused(tmp_path):
     from semperfi.defense.config import DEFAULTS as DEFENSE
-    from semperfi.cli import _receiver_config
+    from semperfi.defense.config import load_config
     from semperfi.sim.scenario import load_scenario
     rng = random.Random(SEED)
     good = (b'[acquisition]\ncoherent_ms = 2\npfa = 1e-3\n[tracking]\npll_bw_hz = 18.0\n'
@@ -135,7 +135,7 @@ def test_fuzzed_toml_and_set_overrides_are_taken_or_refused(tmp_path):
     for n in range(INPUTS_PER_SURFACE["toml"]):
         path = tmp_path / f"c{n}.toml"
         path.write_bytes(mutate(good, rng))
-        for load in (lambda: _receiver_config(str(path), []), lambda: load_scenario(str(path), [])):
+        for load in (lambda: load_config(str(path), []), lambda: load_scenario(str(path), [])):
             try:
                 load()
             except ValueError:
@@ -146,7 +146,7 @@ def test_fuzzed_toml_and_set_overrides_are_taken_or_refused(tmp_path):
     values = EXTREMES + ["[1, 2]", '"full"']
     for _ in range(INPUTS_PER_SURFACE["set"]):
         item = rng.choice(keys) + rng.choice(["=", "==", "", "=="]) + rng.choice(values)
-        for load in (lambda: _receiver_config(None, [item]), lambda: load_scenario(None, [item])):
+        for load in (lambda: load_config(None, [item]), lambda: load_scenario(None, [item])):
             try:
                 load()
             except ValueError:

@@ -63,7 +63,7 @@ def test_gga_parsing():
 def test_plug_in_filter_output_makes_gnss_sdr_fix_the_truth(tmp_path, brdc_path):
     """The plug-in claim, checked by a receiver nobody here wrote: spoofed in, GNSS-SDR at the attacker's position;
     through `semperfi clean`, GNSS-SDR at the truth."""
-    from semperfi.cli import _receiver_config
+    from semperfi.defense.config import load_config
     from semperfi.defense.clean import clean_file
 
     cfg = load_scenario(None, COMMON + [f'constellation.rinex="{brdc_path}"', "attacker.enabled=true",
@@ -71,7 +71,7 @@ def test_plug_in_filter_output_makes_gnss_sdr_fix_the_truth(tmp_path, brdc_path)
     spoofed = tmp_path / "spoofed.bin"
     simulate_to_file(cfg, spoofed)
     summary = clean_file(spoofed, tmp_path / "clean.bin", None, None, None,
-                         _receiver_config(None, ['defense.mode="full"']))
+                         load_config(None, ['defense.mode="full"']))
     assert set(summary.cancelled) and set(summary.verified) == set(summary.cancelled)
     fixes = run_gnss_sdr(tmp_path / "clean.bin", FS, "ishort", 0.0, tmp_path / "clean.gnss-sdr", timeout_s=600)
     assert len(fixes) >= 20, f"GNSS-SDR gave {len(fixes)} fixes on the cleaned file"

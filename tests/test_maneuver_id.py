@@ -8,7 +8,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from semperfi.cli import _receiver_config
+from semperfi.defense.config import load_config
 from semperfi.defense.defended import DefendedReceiver
 from semperfi.defense.imu_track import read_imu_csv
 from semperfi.defense.maneuver_id import LinkedManeuver, sky
@@ -38,7 +38,7 @@ def test_a_weaker_attacker_is_identified_by_the_maneuver_and_the_true_trajectory
                                f'receiver.trajectory="{tmp_path / "motion.csv"}"'])
     simulate_to_file(cfg, tmp_path / "a.bin")
     receiver = functools.partial(DefendedReceiver, imu_track=read_imu_csv(tmp_path / "ins.csv"))
-    run_file(tmp_path / "a.bin", None, None, None, _receiver_config(None, ['defense.mode="full"']), tmp_path / "out",
+    run_file(tmp_path / "a.bin", None, None, None, load_config(None, ['defense.mode="full"']), tmp_path / "out",
              str(brdc_path), receiver_factory=receiver)
     events = [json.loads(line) for line in open(tmp_path / "out" / "events.jsonl")]
     starts = [e for e in events if e["event"] == "cancellation_start"]

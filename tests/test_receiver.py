@@ -8,7 +8,8 @@ import pytest
 
 from semperfi.gps.constants import CA_CHIP_RATE_HZ, L1_HZ
 from semperfi.gps.geometry import enu_rotation, geodetic_to_ecef
-from semperfi.receiver.run import NoSignal, load_receiver_config, run_file
+from semperfi.defense.config import load_config
+from semperfi.receiver.run import NoSignal, run_file
 from semperfi.sim.constellation import build_constellation
 from semperfi.sim.run import simulate_to_file
 from semperfi.sim.scenario import load_scenario
@@ -26,7 +27,7 @@ def simulate(path, *sets, duration):
 
 def receive(path, out_dir, nav=None, *sets):
     captured = {}
-    summary = run_file(path, None, None, None, load_receiver_config(None, list(sets)), out_dir, nav,
+    summary = run_file(path, None, None, None, load_config(None, list(sets)), out_dir, nav,
                        receiver_hook=lambda r: captured.setdefault("receiver", r))
     return summary, captured["receiver"]
 
@@ -181,13 +182,13 @@ def test_truncated_recording_gives_fixes_to_its_end(static_run, tmp_path):
 def test_wrong_sample_rate_says_what_to_check(static_run, tmp_path):
     _, d, _, _ = static_run
     with pytest.raises(ValueError, match="disagrees with SigMF"):   # the sidecar knows better
-        run_file(d / "s.bin", "ishort", 2.5e6, 0.0, load_receiver_config(), tmp_path / "out")
+        run_file(d / "s.bin", "ishort", 2.5e6, 0.0, load_config(), tmp_path / "out")
     bare = tmp_path / "bare.bin"
     bare.write_bytes((d / "s.bin").read_bytes()[: int(4 * FS * 4.0)])   # 4 s, no sidecar
     with pytest.raises(NoSignal, match="--fs"):
-        run_file(bare, "ishort", 2.5e6, 0.0, load_receiver_config(), tmp_path / "out")
+        run_file(bare, "ishort", 2.5e6, 0.0, load_config(), tmp_path / "out")
     with pytest.raises(NoSignal, match="--format"):
-        run_file(bare, "ibyte", 2e6, 0.0, load_receiver_config(), tmp_path / "out2")
+        run_file(bare, "ibyte", 2e6, 0.0, load_config(), tmp_path / "out2")
 
 
 def test_a_loss_of_lock_costs_no_subframe_the_next_channel_takes_the_time_on(tmp_path, brdc_path):

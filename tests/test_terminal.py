@@ -13,14 +13,14 @@ import sys
 import pytest
 
 ANSI = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]")
-BAR = re.compile(r"\d+%\|")          # tqdm's bar
+BAR = re.compile(r"\d+% +\d+/\d+")     # the bar's share done and chunks done (semperfi/progress.py)
 TABLE_HEADER = "Doppler [Hz]"       # the live channel table's header
 
 
 def run_in_pty(args, cwd, timeout_s=300):
     """Run `python -m semperfi.cli ARGS` with stdin/stdout/stderr on a pseudo-terminal; (exit code, screen text)."""
     master, slave = pty.openpty()
-    # A fresh pty is 0x0; a person's terminal is not, and tqdm draws nothing in zero columns.
+    # A fresh pty is 0x0; a person's terminal is not, and a bar draws nothing in zero columns.
     fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 120, 0, 0))
     env = dict(os.environ, COLUMNS="120", LINES="40", TERM="xterm-256color")
     proc = subprocess.Popen([sys.executable, "-m", "semperfi.cli", *args], stdin=slave, stdout=slave,

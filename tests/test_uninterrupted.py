@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from semperfi.cli import _OneLineGroup, _receiver_config
+from semperfi.cli import _OneLineGroup
+from semperfi.defense.config import load_config
 from semperfi.errors import InternalError
 from semperfi.gps import lnav
 from semperfi.receiver.chain import Receiver
@@ -78,7 +79,7 @@ class FailingReceiver(Receiver):
 
 
 def test_an_internal_error_is_an_event_and_one_line_with_the_outputs_kept(short_scene, tmp_path):
-    summary = run_file(short_scene, None, None, None, _receiver_config(None, []), tmp_path / "out",
+    summary = run_file(short_scene, None, None, None, load_config(None, []), tmp_path / "out",
                        receiver_factory=FailingReceiver)
     assert summary.internal_error and "ZeroDivisionError: a bug" in summary.internal_error
     assert "\n" not in summary.internal_error

@@ -8,6 +8,7 @@ from .. import config
 from ..errors import log_internal_error
 from ..iq import GR_COMPLEX, IBYTE, ISHORT, IqWriter
 from ..iq.source import SourceError, chunk_seconds, open_source
+from ..progress import progress as show_progress
 from ..receiver.interference import Monitor
 from ..receiver.outputs import EventLog
 from .guard import SpoofGuard
@@ -57,11 +58,9 @@ def clean_file(in_path, out_path, fmt, fs_hz, if_hz, cfg: dict, events_path=None
         monitor = Monitor(source.fs_hz, source.if_hz, events.emit)
         chunk_s = chunk_seconds(source.fs_hz)
         chunks = source.chunks(chunk_s)
-        if progress:
-            from tqdm import tqdm
-            total = source.expected_samples
-            chunks = tqdm(chunks, total=None if total is None else -(-total // int(source.fs_hz * chunk_s)),
-                          unit="chunk", desc="cleaning")
+        total = source.expected_samples
+        chunks = show_progress(chunks, None if total is None else -(-total // int(source.fs_hz * chunk_s)),
+                               "cleaning", progress)
         try:
             for chunk in chunks:
                 monitor.push(chunk)

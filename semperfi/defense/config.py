@@ -34,3 +34,13 @@ DOMAINS: dict = {
     "defense.min_redundancy": (1, 28),
     "defense.rectify": ("one", "auto", "always", "off"),
 }
+
+
+def load_config(path=None, sets=()) -> dict:
+    """The receiver's configuration with the defence's section: the defaults, then the TOML file at path, then the
+    --set overrides; every value checked against its domain (ValueError: one line naming the key)."""
+    from .. import config
+    from ..receiver.config import DEFAULTS as RECEIVER, DOMAINS as RECEIVER_DOMAINS
+    cfg = config.load({**RECEIVER, **DEFAULTS}, path, sets)
+    config.check_domains(cfg, {**RECEIVER_DOMAINS, **DOMAINS})
+    return cfg

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import BadInput
 from ..iq.formats import format_by_name, format_by_sigmf_datatype
 from .gnss_sdr import (ITEM_TYPES, IONO_MODELS, TROP_MODELS, LOG_NAME, Fix, error_summary_m, gnss_sdr_version,
                        horizontal_errors_m, run_gnss_sdr)
@@ -28,7 +29,7 @@ from .gnss_sdr import (ITEM_TYPES, IONO_MODELS, TROP_MODELS, LOG_NAME, Fix, erro
 GPS_UTC_LEAP_S = 18   # GPS - UTC since 2017-01-01; GNSS-SDR's RTKLIB turns GPS time into UTC with its own table
 
 
-class CrosscheckError(Exception):
+class CrosscheckError(BadInput):
     """A problem worth one line to the user."""
 
 

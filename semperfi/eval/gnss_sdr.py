@@ -20,6 +20,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+import pymap3d
+from pynmeagps import VALCKSUM, NMEAParseError, NMEAReader, NMEATypeError
 
 GNSS_SDR_EXE = "gnss-sdr"
 CONFIG_NAME = "gnss-sdr_semperfi.conf"
@@ -30,12 +32,6 @@ ITEM_TYPES = ("ishort", "ibyte", "gr_complex")
 _DATA_TYPE_ADAPTER = {"ishort": "Ishort_To_Complex", "ibyte": "Ibyte_To_Complex", "gr_complex": "Pass_Through"}
 IONO_MODELS = ("OFF", "Broadcast", "SBAS", "Iono-Free-LC", "Estimate_STEC", "IONEX")
 TROP_MODELS = ("OFF", "Saastamoinen", "SBAS", "Estimate_ZTD", "Estimate_ZTD_Grad")
-
-# WGS 84
-_A_M = 6378137.0
-_F = 1.0 / 298.257223563
-_E2 = _F * (2.0 - _F)
-
 
 @dataclass(frozen=True)
 class Fix:
@@ -237,79 +233,46 @@ def gnss_sdr_config(data_file: str | os.PathLike, fs_hz: float, item_type: str, 
 
 # ----------------------------------------------------------------------------------------------------- NMEA
 
-def _nmea_checksum_ok(sentence: str) -> bool:
-    """True when `sentence` ('$...*hh') carries a correct checksum (or none at all)."""
-    body, star, given = sentence[1:].partition("*")
-    if not star:
-        return True
-    calc = 0
-    for ch in body:
-        calc ^= ord(ch)
+def _nmea(sentence: str, kind: str):
+    """The parsed $Gx<kind> sentence (pynmeagps, checksum verified), or None when it is not one or is corrupt."""
+    sentence = sentence.strip()
+    if not re.match(rf"^\$[A-Z]{{2}}{kind},", sentence):
+        return None
     try:
-        return int(given[:2], 16) == calc
-    except ValueError:
-        return False
-
-
-def _nmea_angle_deg(value: str, hemisphere: str, degree_digits: int) -> float:
-    degrees = int(value[:degree_digits])
-    minutes = float(value[degree_digits:])
-    angle = degrees + minutes / 60.0
-    return -angle if hemisphere in ("S", "W") else angle
+        return NMEAReader.parse(sentence, validate=VALCKSUM)
+    except (NMEAParseError, NMEATypeError, ValueError):
+        return None
 
 
 def parse_gga(sentence: str) -> Fix | None:
     """The fix in one $GxGGA sentence, or None when it is not one, is corrupt, or reports no fix (quality 0)."""
-    sentence = sentence.strip()
-    if not re.match(r"^\$[A-Z]{2}GGA,", sentence) or not _nmea_checksum_ok(sentence):
+    msg = _nmea(sentence, "GGA")
+    if msg is None or not msg.quality or msg.lat == "" or msg.lon == "" or not msg.time:
         return None
-    f = sentence.split("*")[0].split(",")
-    if len(f) < 12:
-        return None
-    try:
-        if not f[6] or int(f[6]) == 0 or not f[1] or not f[2] or not f[4]:
-            return None
-        hh, mm, ss = int(f[1][0:2]), int(f[1][2:4]), float(f[1][4:])
-        lat = _nmea_angle_deg(f[2], f[3], 2)
-        lon = _nmea_angle_deg(f[4], f[5], 3)
-        altitude_m = float(f[9]) if f[9] else 0.0
-        geoid_sep_m = float(f[11]) if f[11] else 0.0
-        n_sats = int(f[7]) if f[7] else 0
-        hdop = float(f[8]) if f[8] else float("nan")
-    except (ValueError, IndexError):
-        return None
+    lat, lon = float(msg.lat), float(msg.lon)
     if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
         return None
-    return Fix(t_utc=f"{hh:02d}:{mm:02d}:{ss:06.3f}", t_sod_s=hh * 3600 + mm * 60 + ss, lat_deg=lat, lon_deg=lon,
-               height_m=altitude_m + geoid_sep_m, n_sats=n_sats, hdop=hdop)
-
-
-def _rmc_date(sentence: str) -> tuple[str, str] | None:
-    """(time field, 'YYYY-MM-DD') of a valid $GxRMC sentence, else None."""
-    sentence = sentence.strip()
-    if not re.match(r"^\$[A-Z]{2}RMC,", sentence) or not _nmea_checksum_ok(sentence):
-        return None
-    f = sentence.split("*")[0].split(",")
-    if len(f) < 10 or not re.fullmatch(r"\d{6}", f[9]):
-        return None
-    dd, mo, yy = int(f[9][0:2]), int(f[9][2:4]), int(f[9][4:6])
-    return f[1], f"{2000 + yy if yy < 80 else 1900 + yy:04d}-{mo:02d}-{dd:02d}"
+    t = msg.time
+    seconds = t.second + t.microsecond * 1e-6
+    number = lambda v, default: default if v == "" else float(v)   # noqa: E731 -- empty fields are pynmeagps' ""
+    return Fix(t_utc=f"{t.hour:02d}:{t.minute:02d}:{seconds:06.3f}", t_sod_s=t.hour * 3600 + t.minute * 60 + seconds,
+               lat_deg=lat, lon_deg=lon, height_m=number(msg.alt, 0.0) + number(msg.sep, 0.0),
+               n_sats=int(number(msg.numSV, 0)), hdop=number(msg.HDOP, float("nan")))
 
 
 def read_nmea_fixes(nmea_path: str | os.PathLike) -> list[Fix]:
     """Every valid GGA fix in an NMEA file, in file order, dated by the RMC sentence of the same epoch."""
     fixes = []
-    dates: dict[str, str] = {}   # RMC time field -> date; GNSS-SDR writes RMC just before GGA
+    dates: dict = {}   # RMC time -> date; GNSS-SDR writes RMC just before GGA
     with open(nmea_path, "r", encoding="ascii", errors="replace") as f:
         for line in f:
-            rmc = _rmc_date(line)
-            if rmc is not None:
-                dates = {rmc[0]: rmc[1]}
+            rmc = _nmea(line, "RMC")
+            if rmc is not None and rmc.date and rmc.time:
+                dates = {rmc.time: rmc.date.isoformat()}
                 continue
             fix = parse_gga(line)
             if fix is not None:
-                time_field = line.split(",")[1]
-                fixes.append(replace(fix, date_utc=dates.get(time_field, "")))
+                fixes.append(replace(fix, date_utc=dates.get(_nmea(line, "GGA").time, "")))
     return fixes
 
 
@@ -395,29 +358,17 @@ def _stop(proc: subprocess.Popen, grace_s: float = 5.0) -> None:
 
 # ----------------------------------------------------------------------------------------------------- errors
 
-def _ecef_m(lat_deg, lon_deg, height_m) -> np.ndarray:
-    lat, lon = np.radians(lat_deg), np.radians(lon_deg)
-    n = _A_M / np.sqrt(1.0 - _E2 * np.sin(lat) ** 2)
-    return np.stack([(n + height_m) * np.cos(lat) * np.cos(lon),
-                     (n + height_m) * np.cos(lat) * np.sin(lon),
-                     (n * (1.0 - _E2) + height_m) * np.sin(lat)], axis=-1)
-
-
 def enu_errors_m(fixes, lat_deg: float, lon_deg: float, height_m: float | None = None) -> np.ndarray:
     """East/north/up offset (N x 3, metres) of each fix from a reference point, in the reference's local tangent
-    plane. With `height_m` None the fixes are put at the reference's height, so 'up' is 0 and east/north are the
-    purely horizontal offsets."""
+    plane (WGS-84, pymap3d). With `height_m` None the fixes are put at the reference's height, so 'up' is 0 and
+    east/north are the purely horizontal offsets."""
     if len(fixes) == 0:
         return np.zeros((0, 3))
     lats = np.array([f.lat_deg for f in fixes], dtype=float)
     lons = np.array([f.lon_deg for f in fixes], dtype=float)
     ref_h = 0.0 if height_m is None else float(height_m)
     hs = np.full_like(lats, ref_h) if height_m is None else np.array([f.height_m for f in fixes], dtype=float)
-    d = _ecef_m(lats, lons, hs) - _ecef_m(lat_deg, lon_deg, ref_h)
-    lat0, lon0 = math.radians(lat_deg), math.radians(lon_deg)
-    sl, cl, so, co = math.sin(lat0), math.cos(lat0), math.sin(lon0), math.cos(lon0)
-    rot = np.array([[-so, co, 0.0], [-sl * co, -sl * so, cl], [cl * co, cl * so, sl]])
-    return d @ rot.T
+    return np.column_stack(pymap3d.geodetic2enu(lats, lons, hs, lat_deg, lon_deg, ref_h))
 
 
 def horizontal_errors_m(fixes, lat_deg: float, lon_deg: float) -> np.ndarray:

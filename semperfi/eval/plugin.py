@@ -102,7 +102,7 @@ def fingerprint(case, nav_path: str | Path, work: Path, gnss_sdr: bool = True, f
     from_s seconds into the recording), and what `clean` said it did."""
     import shutil
 
-    from ..cli import _receiver_config
+    from ..defense.config import load_config
     from ..defense.clean import clean_file
     from ..iq.formats import ISHORT
     from ..receiver.run import NoSignal, run_file
@@ -110,12 +110,12 @@ def fingerprint(case, nav_path: str | Path, work: Path, gnss_sdr: bool = True, f
     from .xgen import RECEIVER_SETTINGS, prepare, score
     data, reference = prepare(case, nav_path, work), prepare(case.clean, nav_path, work)
     cleaned = work / f"{case.tag}-clean.bin"
-    summary = clean_file(data, cleaned, ISHORT, case.fs_hz, 0.0, _receiver_config(None, ['defense.mode="full"']))
+    summary = clean_file(data, cleaned, ISHORT, case.fs_hz, 0.0, load_config(None, ['defense.mode="full"']))
     week, sow = case.truth.start_gps
     t0_s = week * 604800.0 + sow + from_s
     out = {"case": case.tag, "cleaned": str(cleaned), "cancelled": list(summary.cancelled), "gave_up": summary.gave_up,
            "attenuation_db": summary.attenuation_db, "receivers": {}, "fixes": {}}
-    plain = _receiver_config(None, ['defense.mode="off"', *RECEIVER_SETTINGS])
+    plain = load_config(None, ['defense.mode="off"', *RECEIVER_SETTINGS])
     obs = {}
     for name, path in (("reference", reference), ("cleaned", cleaned)):
         run_dir = work / f"{case.tag}-plugin-{name}-semperfi"

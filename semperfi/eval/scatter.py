@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..cli import _receiver_config
+from ..defense.config import load_config
 from ..defense.defended import DefendedReceiver
 from ..receiver.run import run_file
 from .xgen import RECEIVER_SETTINGS, Case, prepare
@@ -35,7 +35,7 @@ def recovered_symbols(case: Case, nav_path: str | Path, work: Path) -> Symbols:
         made.append(DefendedReceiver(*args, **kwargs))
         return made[-1]
 
-    run_file(data, None, None, None, _receiver_config(None, ['defense.mode="full"', *RECEIVER_SETTINGS]), out,
+    run_file(data, None, None, None, load_config(None, ['defense.mode="full"', *RECEIVER_SETTINGS]), out,
              str(nav_path), receiver_factory=factory)
     rx = made[0]
     events = [json.loads(line) for line in open(out / "events.jsonl")]

@@ -43,6 +43,7 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import Callable, Iterator
 
+from ..errors import BadInput
 from .grid import COLUMNS, Cell, run_cell
 from .xgen import PLACES, ephemeris_day, gps_sdr_sim_path, one_line
 
@@ -56,7 +57,7 @@ ROW_KEYS = ("cell_id", *CELL_FIELDS, *METRIC_KEYS, "repro")
 MAX_START_S = 86400.0 - 1.0   # the navigation file's day (gps-sdr-sim wants ephemerides valid at the start)
 
 
-class SweepError(Exception):
+class SweepError(BadInput):
     """A spec or a results table that cannot be used (one line for the user)."""
 
 

@@ -25,6 +25,7 @@ import numpy as np
 import pymap3d
 from scipy.special import i0
 
+from ..errors import BadInput
 from ..flight.deadreckoning import write_track_csv
 from ..flight.maneuver import Leg, ManeuverLimits, plan_trajectory
 from ..iq.sigmf import build_sigmf_meta, sidecar_path, write_sigmf_meta
@@ -47,7 +48,7 @@ SINC_HALF_TAPS = 16          # the fractional-delay interpolator: a Kaiser-windo
 SINC_KAISER_BETA = 8.0
 
 
-class XgenError(Exception):
+class XgenError(BadInput):
     """A problem worth one line to the user."""
 
 
@@ -412,7 +413,7 @@ def run_case(case: Case, nav_path: str | Path, work: Path, defense: str = "full"
     receiver's wall time."""
     import functools
 
-    from ..cli import _receiver_config
+    from ..defense.config import load_config
     from ..defense.defended import DefendedReceiver
     from ..defense.imu_track import read_imu_csv
     from ..receiver.run import NoSignal, run_file
@@ -420,7 +421,7 @@ def run_case(case: Case, nav_path: str | Path, work: Path, defense: str = "full"
     variant = "".join("-" + s.replace('"', "").replace("=", "-") for s in sets)
     out = work / f"{case.tag}-{defense}{'' if assisted else '-unassisted'}{'-imu' if imu_csv else ''}{variant}"
     receiver = functools.partial(DefendedReceiver, imu_track=read_imu_csv(imu_csv) if imu_csv else None)
-    cfg = _receiver_config(None, [f'defense.mode="{defense}"', *RECEIVER_SETTINGS, *sets])
+    cfg = load_config(None, [f'defense.mode="{defense}"', *RECEIVER_SETTINGS, *sets])
     crash = None
     t0 = time.perf_counter()
     try:
@@ -446,13 +447,13 @@ def one_line(exc: BaseException) -> str:
 def plugin_case(case: Case, nav_path: str | Path, work: Path, timeout_s: float = 1800.0) -> dict:
     """The plug-in claim on a case: `semperfi clean` on the mix, then GNSS-SDR, unmodified, on the cleaned file
     (troposphere off, as in the scenes); GNSS-SDR's horizontal error over its last 10 s and at most."""
-    from ..cli import _receiver_config
+    from ..defense.config import load_config
     from ..defense.clean import clean_file
     from ..iq.formats import ISHORT
     from .gnss_sdr import horizontal_errors_m, run_gnss_sdr
     data = prepare(case, nav_path, work)
     cleaned = work / f"{case.tag}-clean.bin"
-    summary = clean_file(data, cleaned, ISHORT, case.fs_hz, 0.0, _receiver_config(None, ['defense.mode="full"']))
+    summary = clean_file(data, cleaned, ISHORT, case.fs_hz, 0.0, load_config(None, ['defense.mode="full"']))
     try:
         fixes = run_gnss_sdr(cleaned, case.fs_hz, "ishort", 0.0, work / f"{case.tag}-gnss-sdr", timeout_s,
                              trop_model="OFF")

@@ -41,6 +41,8 @@ import socket
 import struct
 import time
 
+from ..errors import BadInput
+
 VERSION = 1
 MAX_FRAME_BYTES = 1 << 20
 MAX_SKEW_S = 5.0
@@ -55,8 +57,8 @@ _MAC = 32
 log = logging.getLogger(__name__)
 
 
-class LinkError(Exception):
-    pass
+class LinkError(BadInput):
+    """The link to the other side failed, or it sent what the protocol does not allow."""
 
 
 class Codec:

@@ -25,6 +25,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mav
 
 from ..address import parse_address
+from ..errors import BadInput
 from .deadreckoning import HoverBias, InsTrack, bias_between, hover_bias, integrate
 from .maneuver import Maneuver, ManeuverLimits
 from .telemetry import IMU_FALLBACK, MSG_ID, STREAMS_HZ, Telemetry, TelemetryError, c_nb
@@ -46,7 +47,7 @@ OBEY_GRACE_S = 2.0                        # ... for this long (vehicle time) is 
 HEIGHT_MARGIN_M = 2.0                     # below the limits' minimum height by this much: abort
 
 
-class PilotError(RuntimeError):
+class PilotError(BadInput):
     """The vehicle did not answer, refused, is not fit to maneuver, or sent nonsense."""
 
 

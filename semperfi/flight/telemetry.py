@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from pymavlink.dialects.v20 import common as mav
 
+from ..errors import BadInput
+
 IMU_HZ = 50.0
 # the rates asked for: message name -> Hz of vehicle time
 STREAMS_HZ = {
@@ -26,7 +28,7 @@ MSG_ID = {name: getattr(mav, f"MAVLINK_MSG_ID_{name}") for name in (*STREAMS_HZ,
 G_MPS2 = 9.80665
 
 
-class TelemetryError(RuntimeError):
+class TelemetryError(BadInput):
     """The vehicle sent a value that cannot be (non-finite)."""
 
 

@@ -22,6 +22,8 @@ from typing import BinaryIO, Iterator
 
 import numpy as np
 
+from ..errors import BadInput
+
 from .decimate import StreamDecimator, decimation_factor
 from .formats import MAX_READ_BYTES, SampleFormat, _finite_float, _positive_float, as_format, decode_items
 from .reader import open_iq
@@ -41,7 +43,7 @@ def chunk_seconds(fs_hz: float, nominal_s: float = 0.1) -> float:
     return max(nominal_s, 1.05 * HUGE_ARRAY_BYTES / (8 * fs_hz))
 
 
-class SourceError(ValueError):
+class SourceError(BadInput):
     """The input failed part-way (closed, stalled); the samples before it were delivered."""
 
 

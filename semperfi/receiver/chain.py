@@ -4,6 +4,7 @@ observables -> PVT, with every step reported as an event and every fix written a
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -53,6 +54,16 @@ class RunStats:
     subframes: int = 0
     parity_errors: int = 0
     samples: int = 0
+
+
+class RawObservation(NamedTuple):
+    """What a channel says at an epoch, before the fix: its satellite's transmit time and what goes with it."""
+    prn: int
+    t_sv_s: float            # GPS time of week the signal left the satellite
+    doppler_hz: float
+    cn0_dbhz: float
+    ephemeris: object
+    channel: Channel
 
 
 class Receiver:
@@ -381,9 +392,9 @@ class Receiver:
             self._next_epoch += 1
             self._fix_at(sample)
 
-    def observations_at(self, sample: float) -> list[tuple[int, float, float, float, object, Channel]]:
-        """(prn, t_sv_s, doppler_hz, cn0_dbhz, ephemeris, channel) for every channel that can say its transmit time:
-        from its own navigation message, or from the rectifier (a supervisor's) for the PRNs it takes over."""
+    def observations_at(self, sample: float) -> list[RawObservation]:
+        """An observation for every channel that can say its transmit time: from its own navigation message, or from
+        the rectifier (a supervisor's) for the PRNs it takes over."""
         out = []
         self.rectified_prns = set()
         for prn, ch in self.channels.items():
@@ -396,7 +407,7 @@ class Receiver:
                 if r is not None:
                     self.rectified_prns.add(prn)
             if own is not None:
-                out.append((prn, own[0], ch.doppler_at(sample), float(ch.cn0_dbhz), own[1], ch))
+                out.append(RawObservation(prn, own[0], ch.doppler_at(sample), float(ch.cn0_dbhz), own[1], ch))
         return out
 
     def _own_transmit_time(self, prn: int, ch: Channel, sample: float) -> tuple[float, object] | None:
@@ -499,7 +510,7 @@ class Receiver:
         for left_out, enough in ((self.excluded_prns, self.min_sats_excluding),
                                  (self.suspect_prns, self.min_sats_suspecting),
                                  (self.distrusted_prns, self.min_sats_distrusting)):
-            kept = [r for r in raw if r[0] not in left_out]
+            kept = [r for r in raw if r.prn not in left_out]
             if len(kept) >= enough:
                 raw = kept
         if self._week is None and self.rectifier is not None:
@@ -507,7 +518,7 @@ class Receiver:
         if len(raw) < 4 or self._week is None:   # no GPS time without the week: no fix
             return
         if self._t_rx0 is None:   # start the receiver clock so the pseudoranges come out near 20 000 km
-            self._t_rx0 = max(r[1] for r in raw) + TYPICAL_FLIGHT_S - sample / self.fs_hz
+            self._t_rx0 = max(r.t_sv_s for r in raw) + TYPICAL_FLIGHT_S - sample / self.fs_hz
         t_rx = (self._t_rx0 + sample / self.fs_hz) % SECONDS_PER_WEEK
         obs = [Observation(prn, self._smoothed_m(ch, sample, SPEED_OF_LIGHT_M_S * wrap_week_s(t_rx - t_sv)), t_sv,
                            dop, cn0, eph, weight=10 ** (min(cn0, 50.0) / 10) / 10 ** 4.5)

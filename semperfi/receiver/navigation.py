@@ -197,6 +197,7 @@ class NavDecoder:
         self._search_from = first
         self._bad_run = 0
         self._first_bad: int | None = None
+        self._slipped: dict[tuple[int, int], set] = {}   # (start bit, polarity) -> _slipped_heads
 
     def _bits(self, start: int, n: int, pol: int) -> np.ndarray:
         i = start - self._buf_start
@@ -215,14 +216,18 @@ class NavDecoder:
         if cut > 0:
             self._buf = self._buf[cut:]
             self._buf_start = keep_from
+            self._slipped = {k: v for k, v in self._slipped.items() if k[0] >= keep_from}
 
     # frame sync --------------------------------------------------------------------------------------------
 
-    def _head(self, p: int, pol: int) -> tuple[int, int] | None:
-        """(TOW count, subframe ID) if a TLM and HOW start at bit p in polarity pol, else None."""
+    def _head(self, p: int, pol: int, slip_at: int | None = None) -> tuple[int, int] | None:
+        """(TOW count, subframe ID) if a TLM and HOW start at bit p in polarity pol, else None; slip_at: read with
+        the bits from that one of the head on inverted (a half-cycle slip of the Costas loop there)."""
         w = self._bits(p, SUBFRAME_HEAD_BITS, pol)
         if w.size < SUBFRAME_HEAD_BITS:
             return None
+        if slip_at is not None:
+            w = np.concatenate([w[:slip_at], w[slip_at:] ^ np.uint8(1)])
         prevs = [(0, 0), (1, 0)]
         if p - 2 >= self._buf_start:
             prevs.insert(0, tuple(int(b) for b in self._bits(p - 2, 2, pol)))
@@ -240,12 +245,21 @@ class NavDecoder:
             return None
         return tow, subframe_id
 
+    def _slipped_heads(self, p: int, pol: int) -> set[tuple[int, int]]:
+        """The heads a half-cycle slip inside bits p .. p + SUBFRAME_HEAD_BITS would hide (each slip point tried:
+        a head so read is only ever taken with a whole one to confirm it); kept, as the search looks again."""
+        key = (p, pol)
+        if key not in self._slipped:
+            self._slipped[key] = {h for j in range(1, SUBFRAME_HEAD_BITS) if (h := self._head(p, pol, j)) is not None}
+        return self._slipped[key]
+
     def _search(self) -> bool:
         """Scan for a confirmed frame start; True (and in sync) when one is found. A head (TLM and HOW, each with
         good parity) is confirmed by another up to CONFIRM_SUBFRAMES subframes before or after it whose TOW and
-        subframe ID follow from its own: a half-cycle slip of the Costas loop inside one head (a spoofer's carrier
-        stepping beside the tracked one) breaks that head, not the frame. A channel with no time yet takes it from
-        the confirmed head at once (the anchor), before its subframe is whole."""
+        subframe ID follow from its own; one of the two may be read across a half-cycle slip of the Costas loop
+        inside it (a spoofer's carrier stepping beside the tracked one): the slip breaks that head, not the frame.
+        A channel with no time yet takes it from the confirmed head at once (the anchor), before its subframe is
+        whole."""
         lo = max(self._search_from, self._buf_start)
         hi = self._end - SUBFRAME_HEAD_BITS   # last start whose head is all here
         if hi < lo:
@@ -257,19 +271,24 @@ class NavDecoder:
             codes = (codes << 1) | seg[j:j + n]
         for j in np.flatnonzero((codes == _PREAMBLE_CODE) | (codes == _PREAMBLE_CODE_INVERTED)):
             p, pol = lo + int(j), int(codes[j] == _PREAMBLE_CODE_INVERTED)
+            others = {k: q for k in (*range(1, CONFIRM_SUBFRAMES + 1), *range(-1, -CONFIRM_SUBFRAMES - 1, -1))
+                      if self._buf_start <= (q := p + k * BITS_PER_SUBFRAME) <= self._end - SUBFRAME_HEAD_BITS}
             head = self._head(p, pol)
-            if head is None:
+            if head is not None:
+                heads = [(head, False)]
+            elif any(self._head(q, pol) is not None for q in others.values()):   # worth reading across a slip
+                heads = [(h, True) for h in self._slipped_heads(p, pol)]
+            else:
                 continue
-            for k in (*range(1, CONFIRM_SUBFRAMES + 1), *range(-1, -CONFIRM_SUBFRAMES - 1, -1)):
-                q = p + k * BITS_PER_SUBFRAME
-                if q < self._buf_start or q + SUBFRAME_HEAD_BITS > self._end:
-                    continue
-                if self._head(q, pol) == ((head[0] + k) % SUBFRAMES_PER_WEEK, (head[1] - 1 + k) % 5 + 1):
-                    self._sync, self._pol, self._next_sf = True, pol, p
-                    self._bad_run, self._first_bad = 0, None
-                    if self._anchor is None:   # a time scale already held moves only on whole subframes
-                        self._anchor = (p, float((head[0] - 1) * 6 % SECONDS_PER_WEEK))
-                    return True
+            for (tow, subframe_id), slipped in heads:
+                for k, q in others.items():
+                    want = ((tow + k) % SUBFRAMES_PER_WEEK, (subframe_id - 1 + k) % 5 + 1)
+                    if self._head(q, pol) == want or (not slipped and want in self._slipped_heads(q, pol)):
+                        self._sync, self._pol, self._next_sf = True, pol, p
+                        self._bad_run, self._first_bad = 0, None
+                        if self._anchor is None:   # a time scale already held moves only on whole subframes
+                            self._anchor = (p, float((tow - 1) * 6 % SECONDS_PER_WEEK))
+                        return True
         # starts that may still be confirmed by a head further on are searched again
         self._search_from = max(lo, self._end - CONFIRM_SUBFRAMES * BITS_PER_SUBFRAME - SUBFRAME_HEAD_BITS + 1)
         return False

@@ -12,7 +12,6 @@ from ..errors import NoSignal, log_internal_error
 from ..gps.time import GpsTime
 from ..iq.source import SampleSource, SourceError, chunk_seconds, open_source
 from .chain import Receiver, RunStats
-from .config import DEFAULTS
 from .navigation import AssistedNav
 from .outputs import OutputWriter, write_config
 from .types import Fix
@@ -179,7 +178,3 @@ def _week_hint(source, assisted: AssistedNav | None) -> int | None:
         weeks = [e.week for e in assisted.ephemerides]
         return max(set(weeks), key=weeks.count)
     return None
-
-
-def load_receiver_config(path=None, sets=()) -> dict:
-    return config.load(DEFAULTS, path, sets)

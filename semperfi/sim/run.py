@@ -3,10 +3,10 @@
 from dataclasses import dataclass
 from pathlib import Path
 
-from tqdm import tqdm
 
 from .. import config
 from ..iq import IqWriter
+from ..progress import progress as show_progress
 from .simulate import Simulator
 from .truth import TruthLog, truth_paths
 
@@ -37,8 +37,8 @@ def simulate_to_file(cfg: dict, out_path: str | Path, progress: bool = False) ->
     try:
         with IqWriter(out_path, s["format"], sim.fs_hz, if_hz=sim.if_hz, metadata=meta,
                       description="SemperFi simulated GPS L1 C/A", datetime_utc=sim.t0.to_datetime().isoformat()) as w:
-            for chunk in tqdm(sim.chunks(truth.record, 1.0 / cfg["output"]["truth_rate_hz"], truth.event),
-                              total=n_chunks, unit="chunk", disable=not progress, desc="simulating"):
+            for chunk in show_progress(sim.chunks(truth.record, 1.0 / cfg["output"]["truth_rate_hz"], truth.event),
+                                       n_chunks, "simulating", progress):
                 w.write(chunk)
             clipped = w.clipped_fraction
     finally:
