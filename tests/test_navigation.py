@@ -157,21 +157,23 @@ def test_cycle_slip_inside_a_subframe_costs_only_that_subframe():
     assert decoder.ephemeris == EPH                 # from the next frame's subframe 1
 
 
-@pytest.mark.parametrize("slips", [(25,), (25, 41)], ids=["one slip", "two slips"])
-def test_a_slip_inside_the_second_head_costs_the_channel_no_time(slips):
+@pytest.mark.parametrize("flips, late", [((25,), False), ((2, 7), False), ((25, 41), True)],
+                         ids=["a slip in the TLM", "bits garbled in the TLM", "slips in the TLM and the HOW"])
+def test_a_broken_second_head_costs_the_channel_no_time_while_its_how_holds(flips, late):
     """A spoofer's carrier stepping beside the tracked one (a time push's start) slips the Costas loop by half a
-    cycle; inside the head (TLM and HOW) of the second subframe a fresh channel sees, it breaks the pair that would
-    confirm the first. One slip is read across (each slip point tried, taken only with the whole first head to
-    confirm it): the channel has its time when the second head is whole, as without the slip. A head two slips
-    broke is not read; the first is confirmed by the third, two subframes on, as soon as that one is whole."""
+    cycle and garbles a few bits; inside the head (TLM and HOW) of the second subframe a fresh channel sees, that
+    breaks the pair that would confirm the first. While the second head's HOW holds (its own parity, whatever the TLM
+    before it says), it confirms the whole first head: the channel has its time when the second head is whole, as
+    without the slip. With the HOW broken too, the first head is confirmed by the third, two subframes on, as soon
+    as that one is whole. flips: where the bits' sign turns (a slip; two close together: garbled bits)."""
     k_first, offset = K18 - 2, 40
     bits = stream(k_first, 6)[offset:]
     values = soft(bits)
     first = 300 - offset                            # the first whole subframe
-    for at in slips:                                # in the second one's TLM or HOW
+    for at in flips:
         values[first + 300 + at:] *= -1
     decoder = NavDecoder(PRN, WEEK)
-    timed_at = first + (300 if len(slips) == 1 else 600) + 60
+    timed_at = first + (600 if late else 300) + 60
     events = decoder.push_bits(values[:timed_at - 1], 0)
     assert decoder.time_anchor is None
     events += decoder.push_bits(values[timed_at - 1:timed_at], timed_at - 1)
@@ -179,7 +181,7 @@ def test_a_slip_inside_the_second_head_costs_the_channel_no_time(slips):
     events += decoder.push_bits(values[timed_at:], timed_at)
     good = {(e.start_bit_index, e.t_sv_start_s) for e in events if e.parity_errors == 0}
     assert good >= {(first + 300 * j, float(6 * (k_first + 1 + j) % WEEK_S)) for j in (0, 2, 3)}, good
-    assert first + 300 not in {b for b, _ in good}, "the slipped subframe was taken"
+    assert first + 300 not in {b for b, _ in good}, "the damaged subframe was taken"
 
 
 @pytest.mark.parametrize("sizes", [[1], [7], [50], [299], [301], [4096], "random"])

@@ -197,7 +197,6 @@ class NavDecoder:
         self._search_from = first
         self._bad_run = 0
         self._first_bad: int | None = None
-        self._slipped: dict[tuple[int, int], set] = {}   # (start bit, polarity) -> _slipped_heads
 
     def _bits(self, start: int, n: int, pol: int) -> np.ndarray:
         i = start - self._buf_start
@@ -216,18 +215,14 @@ class NavDecoder:
         if cut > 0:
             self._buf = self._buf[cut:]
             self._buf_start = keep_from
-            self._slipped = {k: v for k, v in self._slipped.items() if k[0] >= keep_from}
 
     # frame sync --------------------------------------------------------------------------------------------
 
-    def _head(self, p: int, pol: int, slip_at: int | None = None) -> tuple[int, int] | None:
-        """(TOW count, subframe ID) if a TLM and HOW start at bit p in polarity pol, else None; slip_at: read with
-        the bits from that one of the head on inverted (a half-cycle slip of the Costas loop there)."""
+    def _head(self, p: int, pol: int) -> tuple[int, int] | None:
+        """(TOW count, subframe ID) if a TLM and HOW start at bit p in polarity pol, else None."""
         w = self._bits(p, SUBFRAME_HEAD_BITS, pol)
         if w.size < SUBFRAME_HEAD_BITS:
             return None
-        if slip_at is not None:
-            w = np.concatenate([w[:slip_at], w[slip_at:] ^ np.uint8(1)])
         prevs = [(0, 0), (1, 0)]
         if p - 2 >= self._buf_start:
             prevs.insert(0, tuple(int(b) for b in self._bits(p - 2, 2, pol)))
@@ -245,19 +240,28 @@ class NavDecoder:
             return None
         return tow, subframe_id
 
-    def _slipped_heads(self, p: int, pol: int) -> set[tuple[int, int]]:
-        """The heads a half-cycle slip inside bits p .. p + SUBFRAME_HEAD_BITS would hide (each slip point tried:
-        a head so read is only ever taken with a whole one to confirm it); kept, as the search looks again."""
-        key = (p, pol)
-        if key not in self._slipped:
-            self._slipped[key] = {h for j in range(1, SUBFRAME_HEAD_BITS) if (h := self._head(p, pol, j)) is not None}
-        return self._slipped[key]
+    def _how_alone(self, p: int) -> set[tuple[int, int]]:
+        """What the HOW of a head starting at bit p may say whatever its TLM suffered (a half-cycle slip of the
+        Costas loop, the bits a carrier step garbled): (TOW count, subframe ID) for each of the TLM's last two bits
+        (D29*, D30*) the HOW's own parity and t bits accept. Only ever taken with a whole head to confirm it."""
+        w = self._bits(p + SUBFRAME_HEAD_BITS // 2, SUBFRAME_HEAD_BITS // 2, 0)
+        if w.size < SUBFRAME_HEAD_BITS // 2 or w[28] != w[29]:
+            return set()
+        out = set()
+        for d29 in (0, 1):
+            for d30 in (0, 1):
+                ok, how = check_parity(w, d29, d30)
+                tow, subframe_id = _to_int(how[:17]), _to_int(how[19:22])
+                if ok and 1 <= subframe_id <= 5 and tow < SUBFRAMES_PER_WEEK:
+                    out.add((tow, subframe_id))
+        return out
 
     def _search(self) -> bool:
         """Scan for a confirmed frame start; True (and in sync) when one is found. A head (TLM and HOW, each with
         good parity) is confirmed by another up to CONFIRM_SUBFRAMES subframes before or after it whose TOW and
-        subframe ID follow from its own; one of the two may be read across a half-cycle slip of the Costas loop
-        inside it (a spoofer's carrier stepping beside the tracked one): the slip breaks that head, not the frame.
+        subframe ID follow from its own; of one of the two the HOW alone may do, its TLM broken by a half-cycle slip
+        of the Costas loop or the bits a carrier step garbled (a spoofer's carrier stepping beside the tracked one):
+        that breaks one head, not the frame.
         A channel with no time yet takes it from the confirmed head at once (the anchor), before its subframe is
         whole."""
         lo = max(self._search_from, self._buf_start)
@@ -276,14 +280,14 @@ class NavDecoder:
             head = self._head(p, pol)
             if head is not None:
                 heads = [(head, False)]
-            elif any(self._head(q, pol) is not None for q in others.values()):   # worth reading across a slip
-                heads = [(h, True) for h in self._slipped_heads(p, pol)]
+            elif any(self._head(q, pol) is not None for q in others.values()):   # its HOW alone may do
+                heads = [(h, True) for h in self._how_alone(p)]
             else:
                 continue
-            for (tow, subframe_id), slipped in heads:
+            for (tow, subframe_id), damaged in heads:
                 for k, q in others.items():
                     want = ((tow + k) % SUBFRAMES_PER_WEEK, (subframe_id - 1 + k) % 5 + 1)
-                    if self._head(q, pol) == want or (not slipped and want in self._slipped_heads(q, pol)):
+                    if self._head(q, pol) == want or (not damaged and want in self._how_alone(q)):
                         self._sync, self._pol, self._next_sf = True, pol, p
                         self._bad_run, self._first_bad = 0, None
                         if self._anchor is None:   # a time scale already held moves only on whole subframes
