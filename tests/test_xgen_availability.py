@@ -21,7 +21,7 @@ def test_a_time_push_aligned_from_the_first_sample_keeps_the_fix_from_the_clean_
     import json as _json
 
     from semperfi.eval.grid import Cell, run_cell
-    cell = Cell("push", "boston", "2022/01/01,00:00:00", 0.0, 10.0, 40.0, at_s=20.0, rate=25.0)
+    cell = Cell("push", "boston", "2022/01/01,00:00:00", 0.0, 10.0, 30.0, at_s=20.0, rate=25.0)
     clean, attacked = run_cell(cell, brdc_path, tmp_path, keep=False)
     print(attacked)
     assert attacked["crash"] is False and attacked["error"] is None, attacked
