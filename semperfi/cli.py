@@ -426,7 +426,10 @@ def _print_run_summary(summary) -> None:
     else:
         f = summary.last_fix
         click.echo(f"  {s.n_fixes} fixes, first at t = {s.first_fix_t_rx_s:.1f} s; last: {f.lat_deg:.7f} "
-                   f"{f.lon_deg:.7f} {f.height_m:.1f} m, {f.n_sats} satellites, PDOP {f.pdop:.1f}")
+                   f"{f.lon_deg:.7f} {f.height_m:.1f} m, {f.n_sats} satellites, PDOP {f.pdop:.1f}, {f.state}, "
+                   f"time {f.time_state}")
+    if summary.defence:
+        click.echo(f"  defence: {summary.defence}")
     click.echo(f"  outputs: {summary.out_dir}")
 
 

@@ -317,6 +317,11 @@ def test_attack_is_recovered_within_5_m_and_no_wrong_fix_is_called_good(tmp_path
     summary, fixes, events, _ = _run_defended(tmp_path / "a.bin", tmp_path / "out", nav=str(brdc_path))
     kinds = [e["event"] for e in events]
     assert "spoofing_alarm" in kinds and "cancellation_start" in kinds
+    # what the user is told at the end: the fix as labelled, and the defence in a line
+    assert summary.last_fix.state == fixes[-1]["state"], (summary.last_fix.state, fixes[-1]["state"])
+    alarm = next(e for e in events if e["event"] == "spoofing_alarm")
+    assert summary.defence.startswith(f"spoofing alarmed at t = {alarm['t_rx_s']:.1f} s") \
+        and "cancelled" in summary.defence, summary.defence
     called_good = [(f["t_rx_s"], round(_horizontal_m(f), 1)) for f in fixes
                    if f["state"] in TRUSTED_STATES and _horizontal_m(f) > 10.0]
     assert not called_good, f"fixes called good while wrong (t, error m): {called_good[:5]}"

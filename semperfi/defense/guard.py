@@ -645,6 +645,23 @@ class SpoofGuard:
             if spoofer_chips is not None:
                 yield tr, spoofer_chips
 
+    def account(self) -> str | None:
+        """One line for the user on what the defence saw, None when it saw no attack."""
+        if self.alarm_t_s is None and not self.takeover:
+            return None
+        prns = " ".join(map(str, sorted(self.alarmed_prns)))
+        parts = [f"spoofing alarmed at t = {self.alarm_t_s:.1f} s on PRNs {prns}" if self.alarm_t_s is not None
+                 else "the clock moved as no oscillator does (a time push)"]
+        if self.push_beat_hz is not None:
+            parts.append(f"a time push ({self.push_beat_hz / L1_HZ * 1e9:.0f} ns/s on every PRN alike): the position "
+                         "holds, the time does not")
+        if self.cancel_started:
+            parts.append(f"cancelled {' '.join(map(str, sorted(self.cancel_started)))}"
+                         + (f" ({len(self.guessed)} on a guess)" if self.guessed else ""))
+        if self.gave_up:
+            parts.append(f"given up {' '.join(map(str, sorted(self.gave_up)))}")
+        return "; ".join(parts)
+
     def finish(self) -> None:
         """At the end of the stream: what the canceller achieved, and what was given up."""
         t_s = self._seen / self.fs_hz

@@ -29,6 +29,7 @@ class RunSummary:
     internal_error: str | None = None   # a bug stopped the run: what came before is written, the event says where
     interrupted: bool = False           # Ctrl-C: what came before is written
     missing_s: float = 0.0              # of the --duration asked for, what the input ended before
+    defence: str | None = None          # what the defence saw, in one line (None: no attack seen, or no defence)
 
 
 def _live_table(receiver: Receiver, t_s: float, total_s: float | None = None):
@@ -63,7 +64,10 @@ def run_file(path: str | Path, fmt: str | None, fs_hz: float | None, if_hz: floa
     interrupted = False
     total_s = None if source.expected_samples is None else source.expected_samples / source.fs_hz
     with OutputWriter(out_dir, cfg["output"]["formats"]) as out:
+        written: list[Fix] = []   # the last fix as written: labelled by the defence, when there is one
+
         def on_fix(fix: Fix) -> None:
+            written[:] = [fix]
             out.write(fix)
             for stream in fix_streams:
                 stream.update(fix)
@@ -119,9 +123,10 @@ def run_file(path: str | Path, fmt: str | None, fs_hz: float | None, if_hz: floa
             if live_ctx is not None:
                 live_ctx.update(_live_table(receiver, receiver.stats.samples / source.fs_hz, total_s))
                 live_ctx.stop()
-    summary = RunSummary(receiver.stats, receiver.last_fix, source.n_samples / source.fs_hz,
+    guard = getattr(receiver, "guard", None)
+    summary = RunSummary(receiver.stats, written[0] if written else receiver.last_fix, source.n_samples / source.fs_hz,
                          time.perf_counter() - t0, source.truncated_bytes, out_dir, input_error, internal_error,
-                         interrupted, source.missing_s)
+                         interrupted, source.missing_s, guard.account() if guard is not None else None)
     if source.nonfinite_samples:
         print(f"warning: {source.nonfinite_samples} samples were NaN or infinite and were zeroed", file=sys.stderr)
     if not receiver.stats.confirmed and input_error is None and internal_error is None and not interrupted:
