@@ -89,6 +89,16 @@ def _to_int(bits) -> int:
     return value
 
 
+def _how(word: np.ndarray, d29: int, d30: int) -> tuple[int, int] | None:
+    """(TOW count, subframe ID) of a HOW word (30 bits as received, after the previous word's last two), or None when
+    its parity, its t bits or its values say it is none."""
+    ok, how = check_parity(word, d29, d30)
+    if not ok or word[28] != word[29]:    # its t bits make the HOW end in 00 (11 if the TLM came complemented)
+        return None
+    tow, subframe_id = _to_int(how[:17]), _to_int(how[19:22])
+    return (tow, subframe_id) if 1 <= subframe_id <= 5 and tow < SUBFRAMES_PER_WEEK else None
+
+
 class NavDecoder:
     """The navigation decoder of one tracking channel (see the module docstring)."""
 
@@ -232,29 +242,16 @@ class NavDecoder:
                 break
         else:
             return None
-        ok, how = check_parity(w[30:60], int(w[28]), int(w[29]))
-        if not ok or w[58] != w[59]:          # its t bits make the HOW end in 00 (11 if the TLM came complemented)
-            return None
-        tow, subframe_id = _to_int(how[:17]), _to_int(how[19:22])
-        if not 1 <= subframe_id <= 5 or tow >= SUBFRAMES_PER_WEEK:
-            return None
-        return tow, subframe_id
+        return _how(w[30:60], int(w[28]), int(w[29]))
 
     def _how_alone(self, p: int) -> set[tuple[int, int]]:
         """What the HOW of a head starting at bit p may say whatever its TLM suffered (a half-cycle slip of the
-        Costas loop, the bits a carrier step garbled): (TOW count, subframe ID) for each of the TLM's last two bits
-        (D29*, D30*) the HOW's own parity and t bits accept. Only ever taken with a whole head to confirm it."""
+        Costas loop, the bits a carrier step garbled): its (TOW count, subframe ID) for each way of the TLM's last
+        two bits (D29*, D30*) its parity accepts. Only ever taken with a whole head to confirm it."""
         w = self._bits(p + SUBFRAME_HEAD_BITS // 2, SUBFRAME_HEAD_BITS // 2, 0)
-        if w.size < SUBFRAME_HEAD_BITS // 2 or w[28] != w[29]:
+        if w.size < SUBFRAME_HEAD_BITS // 2:
             return set()
-        out = set()
-        for d29 in (0, 1):
-            for d30 in (0, 1):
-                ok, how = check_parity(w, d29, d30)
-                tow, subframe_id = _to_int(how[:17]), _to_int(how[19:22])
-                if ok and 1 <= subframe_id <= 5 and tow < SUBFRAMES_PER_WEEK:
-                    out.add((tow, subframe_id))
-        return out
+        return {h for d29 in (0, 1) for d30 in (0, 1) if (h := _how(w, d29, d30)) is not None}
 
     def _search(self) -> bool:
         """Scan for a confirmed frame start; True (and in sync) when one is found. A head (TLM and HOW, each with

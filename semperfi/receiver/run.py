@@ -64,10 +64,11 @@ def run_file(path: str | Path, fmt: str | None, fs_hz: float | None, if_hz: floa
     interrupted = False
     total_s = None if source.expected_samples is None else source.expected_samples / source.fs_hz
     with OutputWriter(out_dir, cfg["output"]["formats"]) as out:
-        written: list[Fix] = []   # the last fix as written: labelled by the defence, when there is one
+        written: Fix | None = None   # the last fix as written: labelled by the defence, when there is one
 
         def on_fix(fix: Fix) -> None:
-            written[:] = [fix]
+            nonlocal written
+            written = fix
             out.write(fix)
             for stream in fix_streams:
                 stream.update(fix)
@@ -124,7 +125,7 @@ def run_file(path: str | Path, fmt: str | None, fs_hz: float | None, if_hz: floa
                 live_ctx.update(_live_table(receiver, receiver.stats.samples / source.fs_hz, total_s))
                 live_ctx.stop()
     guard = getattr(receiver, "guard", None)
-    summary = RunSummary(receiver.stats, written[0] if written else receiver.last_fix, source.n_samples / source.fs_hz,
+    summary = RunSummary(receiver.stats, written or receiver.last_fix, source.n_samples / source.fs_hz,
                          time.perf_counter() - t0, source.truncated_bytes, out_dir, input_error, internal_error,
                          interrupted, source.missing_s, guard.account() if guard is not None else None)
     if source.nonfinite_samples:

@@ -3,7 +3,6 @@
 from dataclasses import dataclass
 from pathlib import Path
 
-
 from .. import config
 from ..iq import IqWriter
 from ..progress import progress as show_progress
