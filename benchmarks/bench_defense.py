@@ -30,12 +30,10 @@ sys.path.insert(0, str(REPO))
 import numpy as np   # noqa: E402
 
 from semperfi.defense.config import load_config   # noqa: E402
-from semperfi.defense.canceller import Canceller, refine_peak   # noqa: E402
 from semperfi.defense.defended import DefendedReceiver   # noqa: E402
 from semperfi.eval.crosscheck import read_truth   # noqa: E402
 from semperfi.eval.gnss_sdr import horizontal_errors_m   # noqa: E402
-from semperfi.iq import open_iq   # noqa: E402
-from semperfi.receiver.acquisition import DopplerGrid, acquire   # noqa: E402
+from semperfi.eval.paper import cancellation_iteration_s   # noqa: E402
 from semperfi.receiver.run import run_file   # noqa: E402
 from semperfi.sim.run import simulate_to_file   # noqa: E402
 from semperfi.sim.scenario import load_scenario   # noqa: E402
@@ -44,30 +42,8 @@ BRDC = REPO.parent / "shared" / "data" / "brdc0010.22n"
 
 
 def iteration_time(work: Path, fs: float, repeat: int) -> None:
-    path = work / "iteration.bin"
-    cfg = load_scenario(None, [f"signal.fs_hz={fs}", "time.duration_s=3.0", "constellation.max_satellites=8",
-                               "attacker.enabled=true", "attacker.power_advantage_db=6.0",
-                               'signal.format="gr_complex"'])
-    simulate_to_file(cfg, path)
-    reader = open_iq(path)
-    x = reader.read(0, reader.n_samples)
-    head = x[: int(0.01 * fs)]
-    cafs = acquire(head, fs, range(1, 33), DopplerGrid(0.0, 6000.0, 333.0), coherent_ms=2, noncoherent=5)
-    peaks = [refine_peak(head, fs, 0.0, c.best) for c in cafs.values() if c.best is not None and c.best.metric > 50]
-    prns = [p.prn for p in peaks]
-    times = []
-    for _ in range(repeat):
-        canceller = Canceller(fs)
-        for p in peaks:
-            canceller.cancel(p, 0)
-        canceller.push(x[: int(1.0 * fs)])                    # settle: pull-in and the first second
-        t0 = time.perf_counter()
-        cleaned = canceller.push(x[int(1.0 * fs): int(2.0 * fs)])   # one second, every spoofed PRN
-        for p in peaks:   # the verification: each PRN around its attacker's Doppler, as the guard does it
-            acquire(cleaned[-int(0.01 * fs):], fs, [p.prn], DopplerGrid(p.doppler_hz, 2000.0, 333.0),
-                    coherent_ms=2, noncoherent=5)
-        times.append(time.perf_counter() - t0)
-    print(f"one cancellation iteration: {len(prns)} spoofed PRNs, 1 s at {fs / 1e6:g} MSa/s, re-acquisition included: "
+    n_prns, times = cancellation_iteration_s(work, fs, repeat)
+    print(f"one cancellation iteration: {n_prns} spoofed PRNs, 1 s at {fs / 1e6:g} MSa/s, re-acquisition included: "
           f"{min(times):.2f} s (best of {repeat}; all: {', '.join(f'{t:.2f}' for t in times)}); "
           f"paper: 2.12 s (Xeon E5-2630), 2.79 s (Core i7)", flush=True)
 

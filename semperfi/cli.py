@@ -586,51 +586,82 @@ def demo(out_dir, duration_s, sets, autopilot_path, speedup, instance) -> None:
 
 
 @main.command(name="eval")
-@click.option("--sweep", "spec_path", required=True, type=click.Path(dir_okay=False),
+@click.option("--suite", "suite", type=click.Choice(["quick", "paper", "full", "tiny"]), default=None,
+              help="the paper's evaluation: each figure and table run again, ours beside the paper's (quick: under "
+                   "10 minutes; tiny: what CI runs)")
+@click.option("--generator", type=click.Choice(["auto", "ours", "gps-sdr-sim", "both"]), default="auto",
+              show_default=True, help="with --suite: what renders the recordings (auto: ours, and GPS-SDR-SIM when "
+                                      "it is found)")
+@click.option("--sweep", "spec_path", default=None, type=click.Path(dir_okay=False),
               help="the sweep's spec (TOML: [sweep] and [space], see semperfi.eval.sweep)")
-@click.option("--nav", "nav_path", required=True, type=click.Path(dir_okay=False),
-              help="RINEX 2 GPS navigation file the scenes are rendered from (their day is its day)")
-@click.option("--out", "out_dir", default="out/sweep", show_default=True, type=click.Path(file_okay=False))
+@click.option("--nav", "nav_path", default=None, type=click.Path(dir_okay=False),
+              help="RINEX 2 GPS navigation file the scenes are rendered from (their day is its day); a sweep needs "
+                   "it, a suite on our simulator alone synthesizes a constellation without it")
+@click.option("--out", "out_dir", default=None, type=click.Path(file_okay=False),
+              help="[default: out/sweep, or out/suite-NAME]")
 @click.option("--ray-address", default=None, help="a Ray cluster's address (default: Ray on this machine)")
 @click.option("--pool", is_flag=True, help="a local process pool even when Ray is installed")
 @click.option("--workers", type=click.IntRange(1, 256), default=2, show_default=True,
               help="with the process pool: how many cells at once")
 @click.option("--only", "only_id", default=None, metavar="CELL_ID", help="run this one cell here (a row's repro)")
-def evaluate(spec_path, nav_path, out_dir, ray_address, pool, workers, only_id) -> None:
-    """Sweep a scenario space: every cell a GPS-SDR-SIM scene received by SemperFi, one row of OUT/results.csv
-    (and .parquet) each as it finishes; a rerun skips the cells already there. Then OUT/report.html."""
+def evaluate(suite, generator, spec_path, nav_path, out_dir, ray_address, pool, workers, only_id) -> None:
+    """The paper's evaluation (--suite), or a sweep over a scenario space (--sweep: every cell a scene received by
+    SemperFi, one row of OUT/results.csv and .parquet each as it finishes; a rerun skips the cells already there).
+    Either ends with OUT/report.html."""
+    try:
+        if (suite is None) == (spec_path is None):
+            raise click.UsageError("give --suite NAME or --sweep SPEC.toml (one of them)")
+        if suite:
+            _evaluate_suite(suite, generator, nav_path, out_dir or f"out/suite-{suite}")
+        else:
+            if nav_path is None:
+                raise click.UsageError("a sweep needs --nav (the RINEX file its scenes are rendered from)")
+            _evaluate_sweep(spec_path, nav_path, out_dir or "out/sweep", ray_address, pool, workers, only_id)
+    except (ValueError, OSError) as exc:   # SweepError, SuiteError too (errors.BadInput)
+        _fail(str(exc), getattr(exc, "exit_code", EXIT_BAD_INPUT))
+
+
+def _evaluate_suite(suite: str, generator: str, nav_path: str | None, out_dir: str) -> None:
+    from .eval.suite import run_suite
+
+    def told(gen, fig) -> None:
+        click.echo(f"[{gen}] {fig.title}: " + (f"FAILED {fig.error}" if fig.error else
+                                                  "; ".join(f"{what}: {ours} (paper {paper})"
+                                                            for what, paper, ours in fig.rows[:3])))
+        sys.stdout.flush()
+    click.echo(run_suite(suite, out_dir, nav_path, generator, told))
+
+
+def _evaluate_sweep(spec_path, nav_path, out_dir, ray_address, pool, workers, only_id) -> None:
     import json
     import time
 
     from .eval.sweep import load_spec, ray_available, read_results, run_only, run_sweep
     from .eval.sweep_report import render_report
-    try:
-        spec = load_spec(spec_path)
-        if only_id:
-            click.echo(json.dumps(run_only(spec, nav_path, out_dir, only_id)))
-            return
-        if not pool and not ray_available():
-            click.echo("semperfi: Ray is not installed (pip install semperfi[sweep]): the cells run in a local "
-                       "process pool; Ray would spread them over a cluster", err=True)
+    spec = load_spec(spec_path)
+    if only_id:
+        click.echo(json.dumps(run_only(spec, nav_path, out_dir, only_id)))
+        return
+    if not pool and not ray_available():
+        click.echo("semperfi: Ray is not installed (pip install semperfi[sweep]): the cells run in a local "
+                   "process pool; Ray would spread them over a cluster", err=True)
 
-        started, ran, failed = time.monotonic(), 0, 0
+    started, ran, failed = time.monotonic(), 0, 0
 
-        def told(row, done, total):
-            nonlocal ran, failed
-            ran, failed = ran + 1, failed + bool(row.get("error"))
-            rate_s = (time.monotonic() - started) / ran    # this run's seconds per cell
-            state = "FAILED " + str(row.get("error")) if row.get("error") else (
-                f"availability {row.get('availability')}, last 10 s {row.get('last_mean_m')} m")
-            click.echo(f"[{done}/{total}, {failed} failed, ~{rate_s * (total - done) / 60:.0f} min left] "
-                       f"{row['cell_id']} {row['kind']} {row['place']} {row['date']} {row['offset_m']:g} m "
-                       f"{row['advantage_db']:+g} dB: {state}")
-            sys.stdout.flush()
-        summary = run_sweep(spec, nav_path, out_dir, "pool" if pool else "auto", workers, ray_address, told)
-        report = render_report(read_results(f"{out_dir}/results.csv"), out_dir)
-        click.echo(f"{summary.cells} cells: {summary.skipped} already done, {summary.ran} run on {summary.backend}, "
-                   f"{summary.failed} failed; {report}")
-    except (ValueError, OSError) as exc:   # SweepError too (errors.BadInput)
-        _fail(str(exc), getattr(exc, "exit_code", EXIT_BAD_INPUT))
+    def told(row, done, total):
+        nonlocal ran, failed
+        ran, failed = ran + 1, failed + bool(row.get("error"))
+        rate_s = (time.monotonic() - started) / ran    # this run's seconds per cell
+        state = "FAILED " + str(row.get("error")) if row.get("error") else (
+            f"availability {row.get('availability')}, last 10 s {row.get('last_mean_m')} m")
+        click.echo(f"[{done}/{total}, {failed} failed, ~{rate_s * (total - done) / 60:.0f} min left] "
+                   f"{row['cell_id']} {row['kind']} {row['place']} {row['date']} {row['offset_m']:g} m "
+                   f"{row['advantage_db']:+g} dB: {state}")
+        sys.stdout.flush()
+    summary = run_sweep(spec, nav_path, out_dir, "pool" if pool else "auto", workers, ray_address, told)
+    report = render_report(read_results(f"{out_dir}/results.csv"), out_dir)
+    click.echo(f"{summary.cells} cells: {summary.skipped} already done, {summary.ran} run on {summary.backend}, "
+               f"{summary.failed} failed; {report}")
 
 
 @main.command()
@@ -638,12 +669,17 @@ def evaluate(spec_path, nav_path, out_dir, ray_address, pool, workers, only_id) 
 @click.option("--out", "out_dir", default=None, type=click.Path(file_okay=False),
               help="where report.html goes (default: beside RESULTS)")
 def report(results, out_dir) -> None:
-    """Render a sweep's report from its results table (CSV or Parquet) without running anything."""
+    """Render a report without running anything: a sweep's from its results table (CSV or Parquet), a suite's from
+    its figures.json (beside it)."""
     from pathlib import Path
 
+    from .eval.suite import render_suite_report
     from .eval.sweep import read_results
     from .eval.sweep_report import render_report
     try:
+        if Path(results).suffix == ".json":
+            click.echo(render_suite_report(results))
+            return
         click.echo(render_report(read_results(results), out_dir or Path(results).parent))
     except (ValueError, OSError) as exc:   # SweepError too (errors.BadInput)
         _fail(str(exc))

@@ -15,7 +15,8 @@ from pathlib import Path
 
 from ..iq.sigmf import sidecar_path
 from .metrics import run_metrics
-from .xgen import OWN_DATE, PLACES, Case, maneuver_case, one_line, recording_s, run_case, takeover_case
+from .xgen import (GPS_SDR_SIM, OWN_DATE, PLACES, Case, maneuver_case, one_line, recording_s, run_case,
+                   takeover_case)
 
 # gps-sdr-sim without -p: each satellite at 20200 km / range times the antenna pattern, up to 11 dB under the fixed
 # gain; the noise set so the fixed gain would stand at 49 dB-Hz puts the satellites at ~38-48 dB-Hz
@@ -48,6 +49,7 @@ class Cell:
     cn0_dbhz: float = PATH_LOSS_CN0_DBHZ
     azimuth_deg: float = 90.0      # where the claimed position lies from the truth (static and flying cells)
     noise_seed: int = 1            # the receiver noise's
+    generator: str = GPS_SDR_SIM   # what renders the scene: gps-sdr-sim, or ours
 
     @property
     def label(self) -> str:
@@ -59,7 +61,8 @@ class Cell:
         if self.azimuth_deg != 90.0 and self.kind in ("static", "flying"):
             what += f" at {self.azimuth_deg:g} deg"
         return (f"{self.place} {when} {what} {self.advantage_db:+g} dB{' imu' if self.imu else ''}"
-                f"{'' if self.path_loss else ' no path loss'} {self.duration_s:g} s")
+                f"{'' if self.path_loss else ' no path loss'} {self.duration_s:g} s"
+                f"{'' if self.generator == GPS_SDR_SIM else ' (' + self.generator + ')'}")
 
     def build(self, work: Path) -> tuple[Case, Path | None]:
         """The case (and the INS track for --imu, or None)."""
@@ -77,7 +80,8 @@ class Cell:
             case, ins = Case(place, self.offset_m, self.advantage_db, duration_s=self.duration_s, **common), None
         else:
             raise ValueError(f"unknown cell kind {self.kind!r}")
-        return replace(case, azimuth_deg=self.azimuth_deg, seed=self.noise_seed), (ins if self.imu else None)
+        return (replace(case, azimuth_deg=self.azimuth_deg, seed=self.noise_seed, generator=self.generator),
+                ins if self.imu else None)
 
     def shortened(self, duration_s: float) -> Cell:
         """The same attack in a shorter recording: a maneuver, takeover or push then starts at SHORT_EVENT_S."""

@@ -45,7 +45,7 @@ from typing import Callable, Iterator
 
 from ..errors import BadInput
 from .grid import COLUMNS, Cell, run_cell
-from .xgen import PLACES, ephemeris_day, gps_sdr_sim_path, one_line
+from .xgen import GENERATORS, GPS_SDR_SIM, PLACES, ephemeris_day, gps_sdr_sim_path, one_line
 
 RESULTS_CSV = "results.csv"
 LOCK = ".sweep.lock"
@@ -119,6 +119,8 @@ def _check(cell: Cell, path: Path) -> None:
         value = getattr(cell, key)
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not low <= value <= high:
             raise SweepError(f"{path}: {key} = {value!r} is outside [{low:g}, {high:g}]")
+    if cell.generator not in GENERATORS:
+        raise SweepError(f"{path}: generator {cell.generator!r} is not one of {', '.join(GENERATORS)}")
     if not isinstance(cell.imu, bool) or not isinstance(cell.path_loss, bool):
         raise SweepError(f"{path}: imu and path_loss are true or false")
     if not isinstance(cell.noise_seed, int) or isinstance(cell.noise_seed, bool):
@@ -152,7 +154,10 @@ def cells_of(spec: Spec, day: str) -> list[Cell]:
 
 def cell_id(cell: Cell, sets: tuple[str, ...] = ()) -> str:
     """What names a cell in the results: a hash of its parameters and the receiver's overrides."""
-    text = json.dumps({"cell": asdict(cell), "sets": list(sets)}, sort_keys=True)
+    params = asdict(cell)
+    if params["generator"] == GPS_SDR_SIM:      # the ids of the tables written before there was a choice
+        del params["generator"]
+    text = json.dumps({"cell": params, "sets": list(sets)}, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 

@@ -63,6 +63,18 @@ def _td(value) -> str:
     return f"<td>{html.escape('' if value is None else str(value))}</td>"
 
 
+def page_head(title: str) -> list[str]:
+    """An HTML report's head and title, with the count of images a browser could not show."""
+    return [f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>",
+            "<style>body{font-family:sans-serif;margin:2em}table{border-collapse:collapse;font-size:12px}"
+            "td,th{border:1px solid #ccc;padding:2px 6px}img{max-width:48%;margin:4px}</style>",
+            # what a browser could not show, counted once the page has loaded (scripts/report-screenshot reads it)
+            "<script>window.addEventListener('load', () => { document.body.dataset.missing = [...document.images]"
+            ".filter(i => !i.complete || i.naturalWidth === 0).length; });</script></head>",
+            "<body data-missing='unknown'>",
+            f"<h1>{html.escape(title)}</h1>"]
+
+
 def render_report(rows: list[dict], out_dir: str | Path, title: str = "SemperFi sweep") -> Path:
     """Write out_dir/report.html and its figures; the report's path."""
     out = Path(out_dir)
@@ -72,14 +84,7 @@ def render_report(rows: list[dict], out_dir: str | Path, title: str = "SemperFi 
     avail = [a for a in avail if a is not None]
     wrong = sum(int(_number(r.get("good_but_wrong")) or 0) for r in rows)
     beyond = sum(int(_number(r.get("good_beyond_hpl")) or 0) for r in rows)
-    parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>",
-             "<style>body{font-family:sans-serif;margin:2em}table{border-collapse:collapse;font-size:12px}"
-             "td,th{border:1px solid #ccc;padding:2px 6px}img{max-width:48%;margin:4px}</style>",
-             # what a browser could not show, counted once the page has loaded (scripts/report-screenshot reads it)
-             "<script>window.addEventListener('load', () => { document.body.dataset.missing = [...document.images]"
-             ".filter(i => !i.complete || i.naturalWidth === 0).length; });</script></head>",
-             "<body data-missing='unknown'>",
-             f"<h1>{html.escape(title)}</h1>",
+    parts = [*page_head(title),
              f"<p>{len(rows)} cells; {len(crashed)} crashed or failed; median availability "
              f"{100 * sorted(avail)[len(avail) // 2]:.1f} %; " if avail else f"<p>{len(rows)} cells; ",
              f"fixes called good but wrong (&gt; 10 m): {wrong}; beyond their HPL: {beyond}.</p>"]

@@ -34,6 +34,8 @@ from .flightpath import MOTION_DT_S, ins_track, write_motion_csv
 from .metrics import Truth, enu_errors, gps_time, read_fixes
 
 GPS_SDR_SIM = "gps-sdr-sim"
+OURS = "ours"                  # our own simulator (semperfi.eval.ours)
+GENERATORS = (GPS_SDR_SIM, OURS)
 AMPLITUDE = 250.0           # complex amplitude of one satellite in gps-sdr-sim's 16-bit output with -p
 OUTPUT_SCALE = 0.5          # headroom in int16 for a +20 dB spoofer on a dozen satellites
 # gps-sdr-sim delays each range by the broadcast (Klobuchar) ionosphere and nothing else (computeRange): no
@@ -84,6 +86,9 @@ class Case:
     path_loss: bool = False          # gps-sdr-sim's own path loss and antenna pattern per satellite (no -p)
     push_ns_per_s: float = 0.0       # not 0: a time push, the spoofer the legitimate scene delayed at this rate
     push_from_s: float = 0.0         # ... from this time on (identical to it before)
+    takeover_hold_s: float = 0.0     # a takeover's (spoof_motion's) parameters, for a generator that takes them
+    takeover_m_s: float = 0.0        # rather than a claimed trajectory
+    generator: str = GPS_SDR_SIM     # what renders the scenes: gps-sdr-sim, or ours (semperfi.eval.ours)
 
     @property
     def _when(self) -> str:
@@ -96,7 +101,8 @@ class Case:
 
     @property
     def _length(self) -> str:
-        return f"{self.fs_hz / 1e6:g}M-{self.duration_s:g}s-s{self.seed}"
+        mark = "" if self.generator == GPS_SDR_SIM else f"-{self.generator}"
+        return f"{self.fs_hz / 1e6:g}M-{self.duration_s:g}s-s{self.seed}{mark}"
 
     @property
     def scene(self) -> str:
@@ -122,7 +128,7 @@ class Case:
     def clean(self) -> Case:
         """The same legitimate scene and noise without the attacker."""
         return replace(self, attacker=False, offset_m=0.0, advantage_db=0.0, spoof_motion="", spoof_start_s=0.0,
-                       push_ns_per_s=0.0, push_from_s=0.0)
+                       push_ns_per_s=0.0, push_from_s=0.0, takeover_hold_s=0.0, takeover_m_s=0.0)
 
     @property
     def truth(self) -> Truth:
@@ -220,7 +226,8 @@ def takeover_case(place: Place, hold_s: float, push_m_s: float, duration_s: floa
     spoof = takeover_motion(place, hold_s, push_m_s, duration_s, work / f"takeover-{stem}.csv",
                             receiver_ned=ned if receiver_m_s else None)
     case = Case(place, 0.0, advantage_db, date=date, fs_hz=fs_hz, duration_s=duration_s,
-                motion=str(motion) if motion else "", spoof_motion=str(spoof), path_loss=path_loss, cn0_dbhz=cn0_dbhz)
+                motion=str(motion) if motion else "", spoof_motion=str(spoof), path_loss=path_loss, cn0_dbhz=cn0_dbhz,
+                takeover_hold_s=hold_s, takeover_m_s=push_m_s)
     ins = write_track_csv(work / f"ins-{case.tag}.csv", t_s, ins_track(t_s, ned, seed=seed, accel_bias_mps2=0.002))
     return case, ins
 
@@ -399,8 +406,14 @@ def scenes(case: Case, nav_path: str | Path, work: Path) -> tuple[Path, Path | N
     return legit, spoof
 
 
-def prepare(case: Case, nav_path: str | Path, work: Path) -> Path:
-    """The mixed recording of a case (its scenes from `scenes`)."""
+def prepare(case: Case, nav_path: str | Path | None, work: Path) -> Path:
+    """The mixed recording of a case: its scenes from `scenes` mixed here, or rendered whole by our own simulator
+    (semperfi.eval.ours; without a navigation file, on its synthesized constellation)."""
+    if case.generator != GPS_SDR_SIM:
+        from .ours import render_case
+        return render_case(case, nav_path, work / f"{case.tag}.bin")
+    if nav_path is None:
+        raise XgenError("gps-sdr-sim needs a RINEX navigation file (--nav)")
     return mix(*scenes(case, nav_path, work), work / f"{case.tag}.bin", case)
 
 
@@ -425,7 +438,7 @@ def run_case(case: Case, nav_path: str | Path, work: Path, defense: str = "full"
     crash = None
     t0 = time.perf_counter()
     try:
-        summary = run_file(data, None, None, None, cfg, out, str(nav_path) if assisted else None,
+        summary = run_file(data, None, None, None, cfg, out, str(nav_path) if assisted and nav_path else None,
                            receiver_factory=receiver,
                            stop=(lambda rx: rx.last_fix is not None) if until_first_fix else None)
         crash = summary.internal_error
