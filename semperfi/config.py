@@ -1,8 +1,14 @@
-"""Run configuration: one TOML file with every key defaulted, overridden by `--set section.key=value`."""
+"""Run configuration: one TOML file with every key defaulted, overridden by `--set section.key=value`.
+
+Each section is a frozen dataclass whose fields are its keys (`key`: the default, the unit, the domain and what it
+means): the one source of the defaults (`defaults`), of the checks (`check`: one line naming the key, its domain and
+the value) and of the typed view the code reads (`section`).
+"""
 
 import copy
 import json
 import tomllib
+from dataclasses import MISSING, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -67,16 +73,20 @@ def load(defaults: dict, path: str | Path | None = None, sets: list[str] = ()) -
     return cfg
 
 
-def dumps_toml(cfg: dict) -> str:
-    """The configuration as TOML, to be written beside every output."""
+def dumps_toml(cfg: dict, sections: dict[str, type] | None = None) -> str:
+    """The configuration as TOML, to be written beside every output; with its sections' dataclasses, each key
+    followed by what it accepts and means."""
     lines: list[str] = []
+    described = {(name, f.name): f for name, cls in (sections or {}).items() for f in fields(cls)}
 
     def emit(section: dict, prefix: str) -> None:
         scalars = {k: v for k, v in section.items() if not isinstance(v, dict)}
         if prefix and scalars:
             lines.append(f"[{prefix}]")
         for k, v in scalars.items():
-            lines.append(f"{k} = {json.dumps(v)}")
+            f = described.get((prefix, k))
+            words = [] if f is None else [w for w in (domain_text(f), f.metadata["doc"]) if w]
+            lines.append(f"{k} = {json.dumps(v)}" + (f"    # {'; '.join(words)}" if words else ""))
         if scalars:
             lines.append("")
         for k, v in section.items():
@@ -87,27 +97,53 @@ def dumps_toml(cfg: dict) -> str:
     return "\n".join(lines)
 
 
-def check_domains(cfg: dict, domains: dict) -> None:
-    """A ValueError naming the first key whose value lies outside its domain.
+def key(default: Any, low: float | None = None, high: float | None = None, *, choices: tuple = (),
+        each: bool = False, unit: str = "", doc: str = ""):
+    """A configuration key as a dataclass field: its default, and its domain -- low..high inclusive, or choices;
+    each: the rule holds for every element of a list -- its unit and what it means."""
+    meta = {"low": low, "high": high, "choices": tuple(choices), "each": each, "unit": unit, "doc": doc}
+    if isinstance(default, list):
+        return field(default_factory=lambda: list(default), metadata=meta)
+    return field(default=default, metadata=meta)
 
-    A domain is (low, high) inclusive; ("one", *choices) for a string; ("each", low, high) or ("each", *choices)
-    for a list, applied to every element."""
-    for name, domain in domains.items():
-        node: Any = cfg
-        for part in name.split("."):
-            node = node[part]
-        values, rule = ([node], domain)
-        if domain[0] in ("one", "each"):
-            values = list(node) if domain[0] == "each" else [node]
-            rule = domain[1:]
-        for value in values:
-            numeric = (domain[0] != "one" and len(rule) == 2
-                       and all(isinstance(r, (int, float)) and not isinstance(r, bool) for r in rule))
-            if numeric:
-                ok = isinstance(value, (int, float)) and not isinstance(value, bool) and rule[0] <= value <= rule[1]
-                want = f"between {rule[0]:g} and {rule[1]:g}"
-            else:
-                ok = value in rule
-                want = "one of " + ", ".join(map(str, rule))
-            if not ok:
-                raise ValueError(f"configuration key '{name}' must be {want}, got {value!r}")
+
+def defaults(sections: dict[str, type]) -> dict:
+    """{section: {key: default}} of sections' dataclasses, the form TOML and --set override."""
+    return {name: {f.name: f.default_factory() if f.default is MISSING else f.default for f in fields(cls)}
+            for name, cls in sections.items()}
+
+
+def domain_text(f) -> str | None:
+    """What a key accepts, in words (None: any value of its type)."""
+    m = f.metadata
+    if m.get("choices"):
+        text = "one of " + ", ".join(map(str, m["choices"]))
+    elif m.get("low") is not None:
+        text = f"between {m['low']:g} and {m['high']:g}" + (f" {m['unit']}" if m["unit"] else "")
+    else:
+        return None
+    return ("each " if m["each"] else "") + text
+
+
+def _inside(value: Any, m) -> bool:
+    if m["choices"]:
+        return value in m["choices"]
+    whole = isinstance(m["low"], int) and isinstance(m["high"], int)     # whole bounds: a count, a PRN
+    return (isinstance(value, int if whole else (int, float)) and not isinstance(value, bool)
+            and m["low"] <= value <= m["high"])
+
+
+def check(cfg: dict, sections: dict[str, type]) -> None:
+    """A ValueError naming the first key of sections whose value lies outside its domain, the domain and the value."""
+    for name, cls in sections.items():
+        for f in fields(cls):
+            want = domain_text(f)
+            value = cfg[name][f.name]
+            if want is not None and not all(_inside(v, f.metadata) for v in (value if f.metadata["each"] else
+                                                                             [value])):
+                raise ValueError(f"configuration key '{name}.{f.name}' must be {want}, got {value!r}")
+
+
+def section(cfg: dict, name: str, cls: type):
+    """A checked configuration's section as its frozen dataclass (lists as tuples)."""
+    return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in cfg[name].items()})

@@ -26,7 +26,7 @@ def one_line_error(result, *fragments):
     (["--set", "attacker.power_advantage_db=40.0"], ["power_advantage_db"]),
     (["--set", "constellation.cn0_dbhz=45.0", "--set", "nosuch.key=1"], ["unknown configuration key 'nosuch'"]),
     (["--set", "constellation.rinex=\"/nonexistent/brdc.22n\""], ["not found"]),
-    (["--set", "receiver.lat_deg=123.0"], ["latitude"]),
+    (["--set", "receiver.lat_deg=123.0"], ["receiver.lat_deg", "between -90 and 90 deg"]),
     (["--set", "signal.if_hz=3e6"], ["if_hz"]),
     (["--set", "time.start=\"yesterday\""], ["time.start"]),
 ])

@@ -1,48 +1,83 @@
-"""Every receiver/defence configuration key with a domain rejects a value outside it: one line, non-zero exit."""
+"""Every configuration key with a domain (receiver, defence, scenario) rejects a value outside it with one line that
+names the key, its domain and the value; the defaults lie inside; each section's dataclass is the one source."""
 import subprocess
 import sys
+from dataclasses import fields
 
 import pytest
 
 from semperfi import config
-from semperfi.defense.config import DEFAULTS as DEFENSE, DOMAINS as DEFENSE_DOMAINS
-from semperfi.receiver.config import DEFAULTS as RECEIVER, DOMAINS as RECEIVER_DOMAINS
+from semperfi.defense.config import SECTIONS as DEFENSE, load_config
+from semperfi.receiver.config import SECTIONS as RECEIVER
+from semperfi.sim.scenario import SECTIONS as SCENARIO, load_scenario
 
-DOMAINS = {**RECEIVER_DOMAINS, **DEFENSE_DOMAINS}
-DEFAULTS = {**RECEIVER, **DEFENSE}
+RUN = {**RECEIVER, **DEFENSE}
 
 
-def _outside(domain):
-    """A TOML literal just outside the domain."""
-    kind = domain[0]
-    if kind == "one":
-        return '"nonsense"'
-    if kind == "each":
-        rule = domain[1:]
-        if len(rule) == 2 and all(isinstance(r, (int, float)) for r in rule):
-            return f"[{rule[1] + 1}]"
-        return '["nonsense"]'
-    low, high = domain
-    return repr(float(high) * 2 + 1) if isinstance(high, float) else str(high + 1)
+def _keys(sections):
+    return [(f"{name}.{f.name}", f) for name, cls in sections.items() for f in fields(cls)
+            if config.domain_text(f) is not None]
+
+
+def _outside(f) -> str:
+    """A TOML literal just outside the key's domain."""
+    m = f.metadata
+    if m["choices"]:
+        value = '"nonsense"'
+    else:
+        high = m["high"]
+        value = str(high + 1) if isinstance(high, int) else repr(float(high) * 2 + 1)
+    return f"[{value}]" if m["each"] else value
 
 
 def test_defaults_lie_inside_their_domains():
-    config.check_domains(DEFAULTS, DOMAINS)
+    config.check(config.defaults(RUN), RUN)
+    config.check(config.defaults(SCENARIO), SCENARIO)
 
 
-@pytest.mark.parametrize("key", sorted(DOMAINS))
-def test_value_outside_domain_is_refused(key):
-    with pytest.raises(ValueError, match=key.replace(".", r"\.")):
-        config.check_domains(config.load(DEFAULTS, None, [f"{key}={_outside(DOMAINS[key])}"]), DOMAINS)
+@pytest.mark.parametrize("name, f", _keys(RUN), ids=[k for k, _ in _keys(RUN)])
+def test_a_run_key_outside_its_domain_is_refused_naming_it(name, f):
+    with pytest.raises(ValueError) as err:
+        load_config(None, [f"{name}={_outside(f)}"])
+    assert f"'{name}' must be {config.domain_text(f)}" in str(err.value)
+
+
+@pytest.mark.parametrize("name, f", _keys(SCENARIO), ids=[k for k, _ in _keys(SCENARIO)])
+def test_a_scenario_key_outside_its_domain_is_refused_naming_it(name, f):
+    with pytest.raises(ValueError) as err:
+        load_scenario(None, [f"{name}={_outside(f)}"])
+    assert f"'{name}' must be {config.domain_text(f)}" in str(err.value)
+
+
+def test_a_count_or_a_prn_must_be_whole():
+    for bad in ("acquisition.prns=[1.5]", "attacker.prns=[3.0]"):
+        with pytest.raises(ValueError, match="between 1 and 32"):
+            (load_scenario if bad.startswith("attacker") else load_config)(None, [bad])
+
+
+def test_an_unknown_key_and_malformed_toml_are_one_line(tmp_path):
+    with pytest.raises(ValueError, match="unknown configuration key 'pvt.nosuch'"):
+        load_config(None, ["pvt.nosuch=1"])
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[pvt\nrate_hz = ")
+    with pytest.raises(ValueError, match="not valid TOML"):
+        load_config(bad, [])
+
+
+def test_a_section_is_read_as_its_dataclass():
+    from semperfi.receiver.config import Integrity
+    cfg = load_config(None, ["integrity.pfa=1e-6"])
+    assert config.section(cfg, "integrity", Integrity).pfa == 1e-6
 
 
 @pytest.mark.parametrize("key", ["acquisition.pfa", "tracking.channels", "defense.mode", "output.formats"])
 def test_cli_refuses_out_of_range_config_in_one_line(key, tmp_path):
     dummy = tmp_path / "x.bin"
     dummy.write_bytes(b"\0" * 4096)
+    f = dict(_keys(RUN))[key]
     res = subprocess.run([sys.executable, "-m", "semperfi.cli", "run", str(dummy), "--fs", "2e6", "--format", "ibyte",
-                          "--out", str(tmp_path / "out"), "--set", f"{key}={_outside(DOMAINS[key])}"],
+                          "--out", str(tmp_path / "out"), "--set", f"{key}={_outside(f)}"],
                          capture_output=True, text=True, timeout=120)
     assert res.returncode != 0, f"exit 0 for {key} out of range"
     lines = res.stderr.strip().splitlines()
-    assert len(lines) == 1 and key in lines[0], f"stderr is not one line naming {key}: {res.stderr!r}"
+    assert len(lines) == 1 and key in lines[0] and config.domain_text(f) in lines[0], res.stderr

@@ -8,12 +8,14 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .. import config
 from ..gps.ephemeris import IonoParams, satellite_clock, satellite_position, satellite_position_velocity
 from ..gps.geometry import light_time_range
 from ..gps.constants import L1_WAVELENGTH_M, SECONDS_PER_WEEK, SPEED_OF_LIGHT_M_S
 from ..gps.time import GpsTime, wrap_week_s
 from .acquisition import Caf, DopplerGrid, acquire, is_cross_correlation
 from .carried_time import Donor, carried, donor
+from .config import Integrity
 from .navigation import ASSIST_MAX_AGE_S, AssistedNav, NavDecoder
 from .pvt import solve
 from .rinex_obs import ObsEpoch
@@ -498,12 +500,10 @@ class Receiver:
             ch.hatch = None
 
     def _raim_config(self) -> IntegrityConfig:
-        i, t = self.cfg.get("integrity", {}), self.cfg["tracking"]
-        sigma = SigmaModel(dll_bw_hz=t["dll_bw_hz"], spacing_chips=t["spacing_chips"],
-                           integration_s=i.get("integration_s", 0.001), smoothing_s=self.cfg["pvt"]["smoothing_s"],
-                           floor_m=i.get("floor_m", 0.5), atmosphere_m=i.get("atmosphere_m", 0.5))
-        return IntegrityConfig(pfa=i.get("pfa", 1e-5), pmd=i.get("pmd", 1e-3), exclude=i.get("exclude", True),
-                               sigma=sigma)
+        i, t = config.section(self.cfg, "integrity", Integrity), self.cfg["tracking"]
+        sigma = SigmaModel(dll_bw_hz=t["dll_bw_hz"], spacing_chips=t["spacing_chips"], integration_s=i.integration_s,
+                           smoothing_s=self.cfg["pvt"]["smoothing_s"], floor_m=i.floor_m, atmosphere_m=i.atmosphere_m)
+        return IntegrityConfig(pfa=i.pfa, pmd=i.pmd, exclude=i.exclude, sigma=sigma)
 
     def _fix_at(self, sample: float) -> None:
         raw = self.observations_at(sample)

@@ -12,6 +12,7 @@ from ..errors import NoSignal, log_internal_error
 from ..gps.time import GpsTime
 from ..iq.source import SampleSource, SourceError, chunk_seconds, open_source
 from .chain import Receiver, RunStats
+from .config import SECTIONS
 from .navigation import AssistedNav
 from .outputs import OutputWriter, write_config
 from .types import Fix
@@ -58,7 +59,7 @@ def run_file(path: str | Path, fmt: str | None, fs_hz: float | None, if_hz: floa
     assisted = AssistedNav.from_rinex(nav_path) if nav_path else None
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    write_config(out_dir, config.dumps_toml(cfg))
+    write_config(out_dir, config.dumps_toml(cfg, SECTIONS))
     t0 = time.perf_counter()
     input_error = internal_error = None
     interrupted = False

@@ -6,6 +6,7 @@ from pathlib import Path
 from .. import config
 from ..iq import IqWriter
 from ..progress import progress as show_progress
+from .scenario import SECTIONS
 from .simulate import Simulator
 from .truth import TruthLog, truth_paths
 
@@ -28,7 +29,7 @@ def simulate_to_file(cfg: dict, out_path: str | Path, progress: bool = False) ->
     sim = Simulator(cfg)
     s = cfg["signal"]
     stem = out_path.with_suffix("")
-    (stem.parent / f"{stem.name}.scenario.toml").write_text(config.dumps_toml(cfg))
+    (stem.parent / f"{stem.name}.scenario.toml").write_text(config.dumps_toml(cfg, SECTIONS))
     truth = TruthLog(out_path)
     meta = {"scenario": f"{stem.name}.scenario.toml", "truth": {k: p.name for k, p in truth_paths(out_path).items()},
             "gps_week": sim.t0.week, "gps_tow_s": sim.t0.tow_s, "noise_rms": sim.noise_rms}

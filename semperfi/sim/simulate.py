@@ -113,8 +113,8 @@ class Simulator:
             raise ValueError("no satellite above the elevation mask at the receiver's position and time")
         signals = [_Signal("legit", p, NavStream(c.ephemerides[p], c.iono, c.utc, almanac), rng.uniform())
                    for p in legit]
-        mp = self.cfg.get("multipath", {})
-        if mp.get("enabled"):
+        mp = self.cfg["multipath"]
+        if mp["enabled"]:
             for sig in list(signals):
                 if not mp["prns"] or sig.prn in mp["prns"]:
                     signals.append(replace(sig, source="multipath", phase_offset_cycles=rng.uniform(),
