@@ -93,7 +93,7 @@ def test_a_guess_continuity_confirms_is_resolved_and_one_it_refutes_is_swapped_t
 
     def cancelled_on_a_guess(prn):   # cancelled on the stronger-peak guess and verified clean after it
         guard.alarmed_prns.add(prn)
-        guard.detector.alarmed.add(prn)
+        guard.detector.raise_alarm(prn, 20.0)
         guard.cancel_started[prn] = 20.0
         guard.verified.add(prn)
         guard.guessed.add(prn)

@@ -185,7 +185,7 @@ def test_sensitive_examination_finds_a_second_signal_closer_than_the_alarm_separ
     spoofed = [p for p in prns if any(r["source"] == "spoof" and r["prn"] == p for r in rows)]
     assert spoofed == [8], "the attacker transmits PRN 8 only"
     reader, det = open_iq(tmp_path / "s.bin"), SpoofingDetector(FS, cfg=DetectorConfig())
-    det.first_alarm_s = 0.0                      # the attack is known (another PRN alarmed)
+    det.attack_known(0.0)                        # another PRN alarmed
     alarms = []
     for t in (0.5, 1.0, 1.5, 2.0):
         x = reader.read(int(t * FS), int(0.04 * FS))

@@ -50,6 +50,22 @@ def test_gnss_sdr_follows_the_attacker_to_its_claimed_position(tmp_path, brdc_pa
     assert np.mean(err) < 50.0, f"distance from the claimed position: mean {np.mean(err):.1f} m"
 
 
+def test_crosscheck_command_line_says_each_mistake_in_one_line(tmp_path, capsys):
+    from semperfi.eval.crosscheck import main
+    iq = tmp_path / "x.bin"
+    iq.write_bytes(bytes(16))   # no sidecar
+    for argv, words in [([], "Missing argument 'IQ_FILE'"), ([str(iq), "--bogus"], "No such option"),
+                        ([str(iq), "--reference-lat", "91", "--reference-lon", "0"], "out of range"),
+                        ([str(iq), "--reference-lat", "1"], "go together"),
+                        ([str(iq), "--format", "short"], "'short' is not one of"),
+                        ([str(tmp_path / "nope.bin")], "IQ file not found"),
+                        ([str(iq)], "give --fs and --format")]:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert err.startswith("crosscheck: error: ") and err.count("\n") == 1 and words in err, (argv, err)
+    assert main(["-h"]) == 0 and "--reference-lat DEG" in capsys.readouterr().out
+
+
 def test_gga_parsing():
     fix = parse_gga("$GPGGA,120024.10,4220.3886360,N,07105.3542378,W,1,08,1.0,12.817,M,0.000,M,0.0,*5B")
     assert fix is not None

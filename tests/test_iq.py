@@ -1,12 +1,16 @@
 """Claims about IQ files: formats as GNSS-SDR lays them out, chunked reading, writing, SigMF sidecars."""
 
+import datetime
 import json
 import struct
 import tracemalloc
+import warnings
 
 import numpy as np
 import pytest
+import sigmf
 
+from semperfi.errors import BadInput
 from semperfi.gps.constants import L1_HZ
 from semperfi.iq import (FORMAT_NAMES, GR_COMPLEX, IBYTE, ISHORT, IqReader, IqWriter, format_by_name, open_iq,
                          read_sigmf_meta)
@@ -244,7 +248,8 @@ def test_sidecar_round_trip_fills_format_rate_and_if(tmp_path):
     assert meta_path.exists() and not (tmp_path / "out.bin.sigmf-meta").exists()
     doc = json.loads(meta_path.read_text())
     g, cap = doc["global"], doc["captures"][0]
-    assert g["core:datatype"] == "ci16_le" and g["core:sample_rate"] == FS_HZ and g["core:version"] == "1.0.0"
+    assert g["core:datatype"] == "ci16_le" and g["core:sample_rate"] == FS_HZ
+    assert g["core:version"] == sigmf.__specification__   # the library writes the specification it validates against
     assert g["core:recorder"] == "semperfi" and g["core:dataset"] == "out.bin" and g["core:description"] == "spoofed"
     assert g["semperfi:if_hz"] == -1250.0 and g["semperfi:scenario"] == "static_spoof"
     assert cap["core:sample_start"] == 0 and cap["core:frequency"] == L1_HZ + 1250.0
@@ -319,6 +324,10 @@ GARBAGE = {
     "frequency is a string": b'{"global": {"core:datatype": "ci8", "core:sample_rate": 4e6},'
                              b' "captures": [{"core:frequency": "L1"}]}',
     "deeply nested": b"[" * 200_000 + b"]" * 200_000,
+    "nested past the library": b'{"global": {"core:datatype": "ci8", "semperfi:x": ' + b"[" * 900 + b"]" * 900 + b"}}",
+    "no datatype": b'{"global": {"core:sample_rate": 4e6}}',
+    "a key SigMF lacks": b'{"global": {"core:datatype": "ci8"}, "' + b"k" * 100_000 + b'": 1}',
+    "300 000 captures": b'{"global": {"core:datatype": "ci8"}, "captures": [' + b",".join([b"{}"] * 300_000) + b"]}",
     "too big": b'{"global": {"core:description": "' + b"x" * (MAX_META_BYTES + 10) + b'"}}',
 }
 
@@ -333,6 +342,28 @@ def test_garbage_sidecar_is_one_value_error_line(tmp_path, name):
     message = _one_line_value_error(excinfo)
     assert "g.sigmf-meta" in message, f"{name}: the message should name the sidecar: {message!r}"
     assert len(message) < 300, f"{name}: message too long: {message[:120]!r}..."
+
+
+def test_our_sidecar_passes_the_sigmf_librarys_own_validator(tmp_path):
+    """The reference validator, as its command line runs it, with undeclared namespaces an error rather than the
+    library's warning (ours must be declared)."""
+    from sigmf.validate import main as sigmf_validate
+    path = tmp_path / "out.bin"
+    with IqWriter(path, "ishort", FS_HZ, if_hz=-1250.0, metadata={"run": {"seed": 3}},
+                  datetime_utc=datetime.datetime(2024, 1, 2, 3, 4, 5)) as w:
+        w.write(_noise(100, 1.0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        sigmf_validate((str(tmp_path / "out.sigmf-meta"),))   # SystemExit(1) if it finds anything wrong
+
+
+def test_a_sidecar_breaking_the_sigmf_schema_is_one_bad_input_line(tmp_path):
+    path = tmp_path / "m.sigmf-meta"
+    path.write_text(json.dumps({"global": {"core:datatype": "ci8", "core:author": 3}}))
+    with pytest.raises(BadInput) as excinfo:
+        read_sigmf_meta(path)
+    assert _one_line_value_error(excinfo).endswith(
+        "m.sigmf-meta: not valid SigMF ($.global['core:author']: 3 is not of type 'string')")
 
 
 def test_read_sigmf_meta_direct(tmp_path):

@@ -204,9 +204,9 @@ class SpoofingDetector:
         self.tracks: dict[int, list[_Track]] = {}
         self.streak: dict[int, int] = {}
         self.alarmed: set[int] = set()
-        self.merged: set[int] = set()            # PRNs whose attacker is aligned with the twin (the guard's)
+        self.merged: set[int] = set()            # PRNs whose attacker is aligned with the twin (the guard says: merge)
         # merged PRNs whose twin is known to lie closer than merged_separation_chips whatever the fit says (the
-        # guard's: a time push's beat gives their separation, the fit this close only its own minimum spacing)
+        # guard says: hold; a time push's beat gives their separation, the fit this close only its own minimum spacing)
         self.held: set[int] = set()
         self.first_alarm_s: float | None = None
         self.single_looks: dict[int, int] = {}   # PRN -> consecutive sensitive looks that found one signal only
@@ -249,11 +249,42 @@ class SpoofingDetector:
         """The attack is known to be present: every PRN is examined at the highest sensitivity."""
         return self.first_alarm_s is not None
 
+    # What the guard tells the detector: its sets change only through these.
+
+    def attack_known(self, t_s: float) -> None:
+        """The attack is known from t_s (the first such time is kept), by an alarm or by what the guard saw (a beat,
+        the clock): every PRN is examined at the highest sensitivity."""
+        if self.first_alarm_s is None:
+            self.first_alarm_s = t_s
+
     def raise_alarm(self, prn: int, t_s: float) -> None:
         """A PRN alarmed by another test (the attacker's power): not examined for pairs while under cancellation."""
         self.alarmed.add(prn)
-        if self.first_alarm_s is None:
-            self.first_alarm_s = t_s
+        self.attack_known(t_s)
+
+    def clear_alarm(self, prn: int) -> None:
+        """A PRN examined for pairs again (its cancellation dropped or lost): the streak it had is kept, so the pair
+        seen again at the next look alarms at once."""
+        self.alarmed.discard(prn)
+
+    def examine_afresh(self, prn: int) -> None:
+        """A PRN examined for pairs again whose peaks have moved since its alarm: its pair is confirmed anew."""
+        self.alarmed.discard(prn)
+        self.streak[prn] = 0
+
+    def merge(self, prn: int) -> None:
+        """The PRN's attacker is aligned with its twin: no pair alarms it until the two have parted by
+        cfg.merged_separation_chips."""
+        self.merged.add(prn)
+
+    def unmerge(self, prn: int) -> None:
+        """The PRN has alarmed: its pairs are judged like any other's."""
+        self.merged.discard(prn)
+
+    def hold(self, prns: set[int]) -> None:
+        """The merged PRNs whose twin lies closer than the merged separation whatever the fit says, from this look
+        on: no pair alarms them."""
+        self.held = set(prns)
 
     def examine(self, cafs: dict[int, Caf], t_s: float, samples: np.ndarray | None = None) -> list[Alarm]:
         """One acquisition's verdict: alarms for PRNs whose pair has now been seen cfg.confirmations times.

@@ -89,13 +89,9 @@ class SpoofGuard:
         self.verified: set[int] = set()                  # PRNs whose legitimate peak dominates after cancellation
         self.pending_verify: dict[int, tuple[float, object, int]] = {}  # PRN -> (when, adversarial peak, stage)
         self.gave_up: dict[int, str] = {}
-        # PRNs cancelled on power alone (no legitimate peak in sight), and those of them whose cancellation took
-        # everything away: the attacker's signal holds the legitimate one within it (aligned in code and carrier),
-        # so it is left to the receiver, which tracks the two merged (the range within the detector's
-        # merged_separation_chips of the legitimate one until it alarms: fixes on it are recovering, never good)
+        # PRNs cancelled on power alone (no legitimate peak in sight); those whose cancellation takes everything away
+        # are merged (the property)
         self._blind: set[int] = set()
-        self.merged: set[int] = set()
-        self.detector.merged = self.merged
         # PRNs whose attacker's peak was chosen by an assumption (the stronger one, the later one, a user's list), not
         # known: the attacker controls its power and delay, so what is cancelled may be the legitimate signal
         self.guessed: set[int] = set()
@@ -212,7 +208,7 @@ class SpoofGuard:
         if self.maneuver is not None and self.maneuver.due_to_start(t_s):
             self._follow_through_maneuver(cafs)
         self._check_power(cafs, t_s)
-        self.detector.held = self._held_by_beat(t_s)
+        self.detector.hold(self._held_by_beat(t_s))
         for alarm in self.detector.examine(cafs, t_s, x if self.detector.sensitive else x[:self.window // 2]):
             self._alarm(alarm.prn, t_s, alarm.pair.as_event())
             if self.d["mode"] == "full":
@@ -304,11 +300,10 @@ class SpoofGuard:
                     self._alarm(prn, t_s, {"found_by": "beat", "beat_hz": round(f_hz, 1), "common": False})
                 continue
             self.takeover = True
-            if not self.detector.sensitive:
-                self.detector.first_alarm_s = t_s
+            self.detector.attack_known(t_s)
             self._alarm(prn, t_s, {"found_by": "beat", "beat_hz": round(f_hz, 1), "common": prn in common})
             if prn in common:
-                self.merged.add(prn)
+                self.detector.merge(prn)
                 self._merged_by_beat.add(prn)
 
     def _held_by_beat(self, t_s: float) -> set[int]:
@@ -334,14 +329,13 @@ class SpoofGuard:
         seamless takeover's time push. No PRN is named (the attack alarm, alarm_t_s, stays the peaks'): it is the
         evidence of a takeover, and every PRN is examined at the highest sensitivity for the peaks to part."""
         self.takeover = True
-        if not self.detector.sensitive:
-            self.detector.first_alarm_s = t_s
+        self.detector.attack_known(t_s)
         self._emit("clock_alarm", t_s, **event)
 
     def _alarm(self, prn: int, t_s: float, event: dict) -> None:
         """An alarm on a PRN, whatever raised it (the event's fields say what)."""
         self.alarmed_prns.add(prn)
-        self.merged.discard(prn)
+        self.detector.unmerge(prn)
         if self.alarm_t_s is None:
             self.alarm_t_s = t_s
         self._emit("spoofing_alarm", t_s, **{"prn": prn, **event})
@@ -427,8 +421,7 @@ class SpoofGuard:
                 self._start_cancelling(prn, t_s, Choice(adv_now, legit_now, False, reason))
             else:   # examined afresh: its peaks have moved since the alarm
                 self.alarmed_prns.discard(prn)
-                self.detector.alarmed.discard(prn)
-                self.detector.streak[prn] = 0
+                self.detector.examine_afresh(prn)
 
     def _verdict_pair(self, prn: int, decided: dict, flagged: dict, followers: dict):
         """(the attacker's follower, the legitimate one's, why) for an awaiting PRN at the verdict, or Nones: decided
@@ -454,8 +447,16 @@ class SpoofGuard:
         if self.attacker_stronger is None or prn in self.cancel_started or prn in self.gave_up or prn in self.awaiting:
             return
         self.alarmed_prns.add(prn)
-        self.detector.alarmed.add(prn)
+        self.detector.raise_alarm(prn, t_s)   # the attack known already: the maneuver that decided it followed one
         self._start_cancelling(prn, t_s, Choice(adversarial, legitimate, False, self._inference))
+
+    @property
+    def merged(self) -> set[int]:
+        """PRNs whose attacker's signal holds the legitimate one within it (aligned in code and carrier): left to the
+        receiver, which tracks the two merged (the range within the detector's merged_separation_chips of the
+        legitimate one until it alarms: fixes on it are recovering, never good). The detector keeps them, for its
+        pairs not to alarm them until the two part; the guard changes them through detector.merge and unmerge."""
+        return self.detector.merged
 
     @property
     def look_sample(self) -> int | None:
@@ -546,8 +547,8 @@ class SpoofGuard:
         self._release(prn)
         del self.cancel_started[prn]
         self._blind.discard(prn)
-        self.merged.add(prn)
-        self.detector.alarmed.discard(prn)
+        self.detector.merge(prn)
+        self.detector.clear_alarm(prn)
         self._emit("cancellation_dropped", t_s, prn=prn, reason="nothing left after cancellation: the attacker's "
                    "signal carries the legitimate one, aligned")
 
@@ -614,7 +615,7 @@ class SpoofGuard:
         self.verified.discard(prn)
         self.pending_verify.pop(prn, None)
         self.alarmed_prns.discard(prn)
-        self.detector.alarmed.discard(prn)
+        self.detector.clear_alarm(prn)
 
     def _still_dominates(self, prn: int, code_phase_chips: float, sample: int) -> bool:
         """Whether the strongest peak left at a code phase (at an absolute sample) is what remains of a cancelled

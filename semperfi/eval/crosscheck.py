@@ -12,16 +12,16 @@ Exit status: 0 with at least one fix, 1 when GNSS-SDR produced none, 2 on a usag
 
 from __future__ import annotations
 
-import argparse
 import csv
 import math
 import sys
 import time
 from pathlib import Path
 
+import click
 import numpy as np
 
-from ..errors import BadInput
+from ..errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, BadInput
 from ..iq.formats import format_by_name, format_by_sigmf_datatype
 from .gnss_sdr import (ITEM_TYPES, IONO_MODELS, TROP_MODELS, LOG_NAME, Fix, error_summary_m, gnss_sdr_version,
                        horizontal_errors_m, run_gnss_sdr)
@@ -43,11 +43,10 @@ def _sidecar_params(iq_path: Path) -> dict:
     params = {"sidecar": meta_path}
     if meta.sample_rate_hz is not None:
         params["fs_hz"] = meta.sample_rate_hz
-    if meta.datatype is not None:
-        try:
-            params["item_type"] = format_by_sigmf_datatype(meta.datatype).name
-        except ValueError as exc:
-            raise CrosscheckError(f"{meta_path}: {exc}") from None
+    try:
+        params["item_type"] = format_by_sigmf_datatype(meta.datatype).name
+    except ValueError as exc:
+        raise CrosscheckError(f"{meta_path}: {exc}") from None
     if_hz = meta.implied_if_hz()
     if if_hz is not None:
         params["if_hz"] = if_hz
@@ -108,57 +107,59 @@ def track_errors_m(fixes: list[Fix], truth: dict[str, np.ndarray], leap_s: float
     return out
 
 
-def _parse_args(argv: list[str] | None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="crosscheck-gnss-sdr",
-                                description="Run GNSS-SDR on an IQ file and report its fixes against a reference.")
-    p.add_argument("iq_file", type=Path, help="IQ file (with its .sigmf-meta sidecar beside it, if any)")
-    p.add_argument("--truth", type=Path, help="receiver truth CSV (default: <stem>.truth-receiver.csv if present)")
-    p.add_argument("--reference-lat", type=float, metavar="DEG", help="reference latitude, degrees")
-    p.add_argument("--reference-lon", type=float, metavar="DEG", help="reference longitude, degrees")
-    p.add_argument("--claimed", action="store_true",
-                   help="reference = the attacker's claimed position in the truth file")
-    p.add_argument("--track", action="store_true",
-                   help="also compare each fix with the truth position at the fix's time (moving receivers)")
-    p.add_argument("--fs", type=float, dest="fs_hz", metavar="HZ", help="sample rate (default: from the sidecar)")
-    p.add_argument("--format", choices=ITEM_TYPES, dest="item_type", help="sample format (default: from the sidecar)")
-    p.add_argument("--if", type=float, dest="if_hz", metavar="HZ", help="IF, Hz (default: sidecar, else 0)")
-    p.add_argument("--out-dir", type=Path, help="where GNSS-SDR runs and writes (default: <stem>.gnss-sdr/)")
-    p.add_argument("--timeout", type=float, dest="timeout_s", metavar="S",
-                   help="give up after this many seconds (default: 300 + 10 x the file's duration)")
-    p.add_argument("--channels", type=int, default=12, help="GNSS-SDR tracking channels (default 12)")
-    p.add_argument("--trop-model", choices=TROP_MODELS, default="Saastamoinen")
-    p.add_argument("--iono-model", choices=IONO_MODELS, default="Broadcast")
-    p.add_argument("--leap-seconds", type=float, default=GPS_UTC_LEAP_S,
-                   help=f"GPS - UTC used to put fixes on the truth's time axis (default {GPS_UTC_LEAP_S})")
-    args = p.parse_args(argv)
-    if (args.reference_lat is None) != (args.reference_lon is None):
-        p.error("--reference-lat and --reference-lon go together")
-    if args.reference_lat is not None and not (-90 <= args.reference_lat <= 90 and -180 <= args.reference_lon <= 180):
-        p.error("reference latitude/longitude out of range")
-    return args
+_PATH = click.Path(path_type=Path)
 
 
-def crosscheck(args: argparse.Namespace) -> int:
-    iq = args.iq_file
+@click.command(context_settings={"help_option_names": ["-h", "--help"]},
+               help="Run GNSS-SDR on IQ_FILE (with its .sigmf-meta sidecar beside it, if any) and report its fixes "
+                    "against a reference.")
+@click.argument("iq", metavar="IQ_FILE", type=_PATH)
+@click.option("--truth", "truth_path", type=_PATH,
+              help="receiver truth CSV (default: <stem>.truth-receiver.csv if present)")
+@click.option("--reference-lat", type=float, metavar="DEG", help="reference latitude, degrees")
+@click.option("--reference-lon", type=float, metavar="DEG", help="reference longitude, degrees")
+@click.option("--claimed", is_flag=True, help="reference = the attacker's claimed position in the truth file")
+@click.option("--track", is_flag=True,
+              help="also compare each fix with the truth position at the fix's time (moving receivers)")
+# GNSS-SDR's own three item types, not semperfi's --format (cli._input_options): it reads no other layout
+@click.option("--fs", "fs_hz", type=float, metavar="HZ", help="sample rate (default: from the sidecar)")
+@click.option("--format", "item_type", type=click.Choice(ITEM_TYPES), help="sample format (default: from the sidecar)")
+@click.option("--if", "if_hz", type=float, metavar="HZ", help="IF, Hz (default: sidecar, else 0)")
+@click.option("--out-dir", type=_PATH, help="where GNSS-SDR runs and writes (default: <stem>.gnss-sdr/)")
+@click.option("--timeout", "timeout_s", type=float, metavar="S",
+              help="give up after this many seconds (default: 300 + 10 x the file's duration)")
+@click.option("--channels", type=int, default=12, show_default=True, help="GNSS-SDR tracking channels")
+@click.option("--trop-model", type=click.Choice(TROP_MODELS), default="Saastamoinen", show_default=True)
+@click.option("--iono-model", type=click.Choice(IONO_MODELS), default="Broadcast", show_default=True)
+@click.option("--leap-seconds", type=float, default=GPS_UTC_LEAP_S, show_default=True,
+              help="GPS - UTC used to put fixes on the truth's time axis")
+def crosscheck(iq: Path, truth_path: Path | None, reference_lat: float | None, reference_lon: float | None,
+               claimed: bool, track: bool, fs_hz: float | None, item_type: str | None, if_hz: float | None,
+               out_dir: Path | None, timeout_s: float | None, channels: int, trop_model: str, iono_model: str,
+               leap_seconds: float) -> int:
+    """The exit status: 0 with at least one fix, 1 when GNSS-SDR produced none (errors raise)."""
+    if (reference_lat is None) != (reference_lon is None):
+        raise click.UsageError("--reference-lat and --reference-lon go together")
+    if reference_lat is not None and not (-90 <= reference_lat <= 90 and -180 <= reference_lon <= 180):
+        raise click.UsageError("reference latitude/longitude out of range")   # NaN too
     if not iq.is_file():
         raise CrosscheckError(f"IQ file not found: {iq}")
     params = _sidecar_params(iq)
-    fs_hz = args.fs_hz if args.fs_hz is not None else params.get("fs_hz")
-    item_type = args.item_type or params.get("item_type")
-    if_hz = args.if_hz if args.if_hz is not None else params.get("if_hz", 0.0)
+    fs_hz = fs_hz if fs_hz is not None else params.get("fs_hz")
+    item_type = item_type or params.get("item_type")
+    if_hz = if_hz if if_hz is not None else params.get("if_hz", 0.0)
     if fs_hz is None or item_type is None:
         raise CrosscheckError(f"{iq}: no SigMF sidecar says the sample rate/format; give --fs and --format")
     duration_s = iq.stat().st_size / format_by_name(item_type).bytes_per_sample / fs_hz
 
-    truth_path = args.truth
     if truth_path is None:
         guess = iq.with_suffix("").parent / f"{iq.with_suffix('').name}.truth-receiver.csv"
         truth_path = guess if guess.is_file() else None
     truth = read_truth(truth_path) if truth_path is not None else None
 
-    if args.reference_lat is not None:
-        ref, ref_what = (args.reference_lat, args.reference_lon), "given on the command line"
-    elif args.claimed:
+    if reference_lat is not None:
+        ref, ref_what = (reference_lat, reference_lon), "given on the command line"
+    elif claimed:
         if truth is None:
             raise CrosscheckError("--claimed needs a truth file (--truth)")
         ok = np.flatnonzero(np.isfinite(truth["claimed_lat_deg"]) & np.isfinite(truth["claimed_lon_deg"]))
@@ -170,17 +171,17 @@ def crosscheck(args: argparse.Namespace) -> int:
         ref, ref_what = (truth["lat_deg"][0], truth["lon_deg"][0]), f"first row of {truth_path.name}"
     else:
         raise CrosscheckError("no reference: give --truth or --reference-lat/--reference-lon")
-    if args.track and truth is None:
+    if track and truth is None:
         raise CrosscheckError("--track needs a truth file (--truth)")
 
-    out_dir = args.out_dir or iq.with_suffix("").parent / f"{iq.with_suffix('').name}.gnss-sdr"
-    timeout_s = args.timeout_s if args.timeout_s is not None else 300.0 + 10.0 * duration_s
+    out_dir = out_dir or iq.with_suffix("").parent / f"{iq.with_suffix('').name}.gnss-sdr"
+    timeout_s = timeout_s if timeout_s is not None else 300.0 + 10.0 * duration_s
     version = gnss_sdr_version()
     print(f"{version}: {iq} ({duration_s:.1f} s of {item_type} at {fs_hz / 1e6:g} MSa/s, IF {if_hz:g} Hz)",
           flush=True)
     t_start = time.monotonic()
-    fixes = run_gnss_sdr(iq, fs_hz, item_type, if_hz, out_dir, timeout_s, channels=args.channels,
-                         trop_model=args.trop_model, iono_model=args.iono_model)
+    fixes = run_gnss_sdr(iq, fs_hz, item_type, if_hz, out_dir, timeout_s, channels=channels,
+                         trop_model=trop_model, iono_model=iono_model)
     run_s = time.monotonic() - t_start
     print(f"GNSS-SDR ran {run_s:.1f} s; its output is in {out_dir}")
     if not fixes:
@@ -193,8 +194,8 @@ def crosscheck(args: argparse.Namespace) -> int:
     first = fixes[0]
     line = f"first fix: {first.t_utc} UTC"
     if truth is not None:
-        t_rx = fix_times_rx_s([first], truth, args.leap_seconds)[0]
-        line += f"  ({t_rx:.1f} s after the start of the file, taking GPS - UTC = {args.leap_seconds:g} s)"
+        t_rx = fix_times_rx_s([first], truth, leap_seconds)[0]
+        line += f"  ({t_rx:.1f} s after the start of the file, taking GPS - UTC = {leap_seconds:g} s)"
     print(line)
     last = fixes[-1]
     print(f"last fix:  {last.t_utc} UTC  at {last.lat_deg:.7f}, {last.lon_deg:.7f}, {last.height_m:.1f} m")
@@ -202,8 +203,8 @@ def crosscheck(args: argparse.Namespace) -> int:
     s = error_summary_m(errors)
     print(f"reference: {ref[0]:.7f}, {ref[1]:.7f} ({ref_what})")
     print(f"horizontal error vs reference [m]: mean {s['mean']:.2f}  p95 {s['p95']:.2f}  max {s['max']:.2f}")
-    if args.track:
-        te = track_errors_m(fixes, truth, args.leap_seconds)
+    if track:
+        te = track_errors_m(fixes, truth, leap_seconds)
         inside = te[np.isfinite(te)]
         if inside.size:
             s = error_summary_m(inside)
@@ -216,13 +217,21 @@ def crosscheck(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = _parse_args(argv)
+    """The command line: what goes wrong, a mistyped option as much as a failed run, is one line on stderr and
+    exit status 2 (click's usage block and tracebacks are not for a user)."""
     try:
-        return crosscheck(args)
+        return crosscheck.main(argv, prog_name="crosscheck-gnss-sdr", standalone_mode=False)
+    except click.UsageError as exc:
+        why = f"{exc.format_message()} (--help says more)"
+    except click.ClickException as exc:
+        why = exc.format_message()
     except (CrosscheckError, RuntimeError, TimeoutError, ValueError, OSError) as exc:
-        first_line = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        print(f"crosscheck: error: {first_line}", file=sys.stderr)
-        return 2
+        why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    except (click.exceptions.Abort, KeyboardInterrupt):
+        print("crosscheck: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    print(f"crosscheck: error: {why}", file=sys.stderr)
+    return EXIT_BAD_INPUT
 
 
 if __name__ == "__main__":

@@ -171,11 +171,10 @@ def open_iq(path: str | os.PathLike, fmt: SampleFormat | str | None = None, fs_h
     meta = read_sigmf_meta(meta_path) if meta_path is not None else None
     side_fmt = side_fs = side_if = None
     if meta is not None:
-        if meta.datatype is not None:
-            try:
-                side_fmt = format_by_sigmf_datatype(meta.datatype)
-            except ValueError as exc:
-                raise ValueError(f"SigMF sidecar {meta_path}: {exc}") from None
+        try:
+            side_fmt = format_by_sigmf_datatype(meta.datatype)
+        except ValueError as exc:
+            raise ValueError(f"SigMF sidecar {meta_path}: {exc}") from None
         side_fs = meta.sample_rate_hz
         side_if = meta.implied_if_hz()
 

@@ -1,11 +1,12 @@
-"""SigMF metadata sidecars (https://sigmf.org, v1.0.0), written and read with the json module only.
+"""SigMF metadata sidecars (https://sigmf.org), built, validated and read through the SigMF reference library.
 
 GNSS-SDR users name their data files `.bin`/`.dat`, not `.sigmf-data`, so the sidecar sits next to the data file
 with the same stem (`out.bin` -> `out.sigmf-meta`) and `core:dataset` records the data file's name. Our own
-values live in the `semperfi:` namespace: `semperfi:if_hz` and whatever the caller adds.
+values live in the declared `semperfi:` namespace: `semperfi:if_hz` and whatever the caller adds.
 
-A sidecar read from disk is input from outside: its size is bounded and every field we use is type-checked, so a
-damaged one ends in one ValueError line, not a traceback.
+A sidecar read from disk is input from outside: its size is bounded and it must be UTF-8 JSON holding a 'global'
+object before the library sees it, and the library's schema then checks it whole; anything wrong ends in one
+BadInput line naming the file, not a traceback.
 """
 
 from __future__ import annotations
@@ -13,15 +14,22 @@ from __future__ import annotations
 import datetime as _dt
 import json
 import os
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from jsonschema import ValidationError   # what the library's validator raises
+from sigmf import SigMFFile
+from sigmf.keys import (DATASET_KEY, DATATYPE_KEY, DATETIME_KEY, DESCRIPTION_KEY, EXTENSIONS_KEY, FREQUENCY_KEY,
+                        RECORDER_KEY, SAMPLE_RATE_KEY, SAMPLE_START_KEY)
+
+from ..errors import BadInput
 from ..gps.constants import L1_HZ
 from .formats import _finite_float, _positive_float
 
-SIGMF_VERSION = "1.0.0"
 META_SUFFIX = ".sigmf-meta"
 MAX_META_BYTES = 1 << 20   # real sidecars are a few kB; anything bigger is not one we wrote or can trust
+MAX_SEGMENTS = 10_000      # captures + annotations: the schema takes ~25 us on each, and 1 MB holds 300 000
 NAMESPACE = "semperfi"
 _IF_KEY = f"{NAMESPACE}:if_hz"
 
@@ -30,7 +38,7 @@ _IF_KEY = f"{NAMESPACE}:if_hz"
 class SigmfMeta:
     """The fields of a sidecar the IQ reader cares about; None where the sidecar is silent."""
     path: Path | None
-    datatype: str | None                  # core:datatype, e.g. 'ci16_le'
+    datatype: str                         # core:datatype, e.g. 'ci16_le' (SigMF requires it)
     sample_rate_hz: float | None          # core:sample_rate
     if_hz: float | None                   # semperfi:if_hz
     center_frequency_hz: float | None     # core:frequency of the first capture (RF centre)
@@ -74,10 +82,25 @@ def _iso_utc(when: _dt.datetime | str) -> str:
     return when.astimezone(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
 
 
+def _validated(record: SigMFFile, where: str) -> SigMFFile:
+    """`record` once the library's validator passes it (schema, declared namespaces, capture order); else one
+    BadInput line. The schema's message quotes the bad value, which a hostile file makes huge: it is cut short."""
+    try:
+        with warnings.catch_warnings():   # an undeclared namespace in someone else's file is theirs to fix
+            warnings.simplefilter("ignore", DeprecationWarning)
+            record.validate()
+    except ValidationError as exc:
+        why = exc.message.splitlines()[0] if exc.message else "invalid"
+        why = why if len(why) <= 100 else why[:97] + "..."
+        raise BadInput(f"{where}: not valid SigMF ({exc.json_path}: {why})") from None
+    return record
+
+
 def build_sigmf_meta(*, datatype: str, sample_rate_hz: float, dataset: str, if_hz: float = 0.0,
                      center_frequency_hz: float | None = None, description: str = "",
                      datetime_utc: _dt.datetime | str | None = None, extra: dict | None = None) -> dict:
-    """The sidecar as a JSON-ready dict. `center_frequency_hz` defaults to L1 - if_hz; `extra` keys go under
+    """The sidecar as a JSON-ready dict, validated by the SigMF library (which also sets core:version to the
+    specification it implements). `center_frequency_hz` defaults to L1 - if_hz; `extra` keys go under
     `semperfi:` (a key already carrying the prefix keeps it)."""
     sample_rate_hz = _positive_float(sample_rate_hz, "sample rate (fs_hz)")
     if_hz = _finite_float(if_hz, "intermediate frequency (if_hz)")
@@ -85,14 +108,13 @@ def build_sigmf_meta(*, datatype: str, sample_rate_hz: float, dataset: str, if_h
         center_frequency_hz = L1_HZ - if_hz
     center_frequency_hz = _finite_float(center_frequency_hz, "centre frequency")
     glob = {
-        "core:datatype": datatype,
-        "core:sample_rate": sample_rate_hz,
-        "core:version": SIGMF_VERSION,
-        "core:description": str(description),
-        "core:recorder": NAMESPACE,
-        "core:dataset": str(dataset),
+        DATATYPE_KEY: datatype,
+        SAMPLE_RATE_KEY: sample_rate_hz,
+        DESCRIPTION_KEY: str(description),
+        RECORDER_KEY: NAMESPACE,
+        DATASET_KEY: str(dataset),
         # SigMF asks every namespace but core to be declared; optional, so other readers may ignore it.
-        "core:extensions": [{"name": NAMESPACE, "version": "0.1.0", "optional": True}],
+        EXTENSIONS_KEY: [{"name": NAMESPACE, "version": "0.1.0", "optional": True}],
         _IF_KEY: if_hz,
     }
     for key, value in (extra or {}).items():
@@ -102,10 +124,14 @@ def build_sigmf_meta(*, datatype: str, sample_rate_hz: float, dataset: str, if_h
         if full == _IF_KEY:
             raise ValueError("metadata key 'if_hz' is reserved; pass if_hz instead")
         glob[full] = value
-    capture = {"core:sample_start": 0, "core:frequency": center_frequency_hz}
+    capture = {FREQUENCY_KEY: center_frequency_hz}
     if datetime_utc is not None:
-        capture["core:datetime"] = _iso_utc(datetime_utc)
-    return {"global": glob, "captures": [capture], "annotations": []}
+        capture[DATETIME_KEY] = _iso_utc(datetime_utc)
+    record = SigMFFile(global_info=glob)
+    record.add_capture(0, capture)
+    _validated(record, "metadata to write")
+    return {"global": record.get_global_info(), "captures": record.get_captures(),
+            "annotations": record.get_annotations()}
 
 
 def write_sigmf_meta(meta_path: str | os.PathLike, meta: dict) -> Path:
@@ -129,59 +155,56 @@ def _reject_constant(name: str):
 
 
 def read_sigmf_meta(meta_path: str | os.PathLike) -> SigmfMeta:
-    """Parse and type-check a sidecar; any problem is one ValueError line naming the file."""
+    """Parse a sidecar and have the SigMF library validate it; any problem is one BadInput line naming the file."""
     meta_path = Path(meta_path)
     where = f"SigMF sidecar {meta_path}"
     if not meta_path.is_file():
-        raise ValueError(f"{where}: not a regular file")
+        raise BadInput(f"{where}: not a regular file")
     try:
         with open(meta_path, "rb") as f:
             raw = f.read(MAX_META_BYTES + 1)   # bounded even if the file grows or lies about its size
     except OSError as exc:
-        raise ValueError(f"{where}: cannot read: {exc.strerror or exc}") from None
+        raise BadInput(f"{where}: cannot read: {exc.strerror or exc}") from None
     if len(raw) > MAX_META_BYTES:
-        raise ValueError(f"{where}: larger than {MAX_META_BYTES} bytes, refusing to parse it")
+        raise BadInput(f"{where}: larger than {MAX_META_BYTES} bytes, refusing to parse it")
     try:
         doc = json.loads(raw.decode("utf-8"), parse_constant=_reject_constant)
     except UnicodeDecodeError:
-        raise ValueError(f"{where}: not UTF-8 text") from None
+        raise BadInput(f"{where}: not UTF-8 text") from None
     except (ValueError, RecursionError) as exc:   # JSONDecodeError is a ValueError; deep nesting recurses
         first_line = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise ValueError(f"{where}: malformed JSON ({first_line})") from None
-
+        raise BadInput(f"{where}: malformed JSON ({first_line})") from None
     if not isinstance(doc, dict) or not isinstance(doc.get("global"), dict):
-        raise ValueError(f"{where}: expected a JSON object with a 'global' object")
-    glob = doc["global"]
+        raise BadInput(f"{where}: expected a JSON object with a 'global' object")
 
-    def text(obj: dict, key: str) -> str | None:
-        value = obj.get(key)
-        if value is not None and not isinstance(value, str):
-            raise ValueError(f"{where}: {key} must be a string, got {type(value).__name__}")
-        return value
+    # What other writers leave out and the schema defaults: empty captures and annotations, a capture at sample 0.
+    segments = doc.setdefault("captures", []), doc.setdefault("annotations", [])
+    if sum(len(s) for s in segments if isinstance(s, list)) > MAX_SEGMENTS:
+        raise BadInput(f"{where}: more than {MAX_SEGMENTS} captures and annotations, refusing to check them")
+    for capture in segments[0] if isinstance(segments[0], list) else ():   # not a list: the schema says so below
+        if isinstance(capture, dict):
+            capture.setdefault(SAMPLE_START_KEY, 0)
+    try:   # the library sets core:version to the specification it checks against
+        record = _validated(SigMFFile(metadata=doc), where)
+    except RecursionError:   # nested shallowly enough for the JSON parser, too deep for the library's copy
+        raise BadInput(f"{where}: not valid SigMF (nested too deep)") from None
+    glob, first = record.get_global_info(), (record.get_captures() or [{}])[0]
+    try:
+        if_hz = _finite_float(glob[_IF_KEY], _IF_KEY) if _IF_KEY in glob else None   # ours: the schema knows not
+    except ValueError as exc:
+        raise BadInput(f"{where}: {exc}") from None
 
-    def number(obj: dict, key: str, positive: bool = False) -> float | None:
-        if key not in obj:
-            return None
-        check = _positive_float if positive else _finite_float
-        try:
-            return check(obj[key], key)
-        except ValueError as exc:
-            raise ValueError(f"{where}: {exc}") from None
-
-    captures = doc.get("captures", [])
-    if not isinstance(captures, list) or not all(isinstance(c, dict) for c in captures):
-        raise ValueError(f"{where}: 'captures' must be a list of objects")
-    first = captures[0] if captures else {}
+    def number(obj: dict, key: str) -> float | None:   # the schema checked type and range
+        return float(obj[key]) if key in obj else None
 
     return SigmfMeta(
         path=meta_path,
-        datatype=text(glob, "core:datatype"),
-        sample_rate_hz=number(glob, "core:sample_rate", positive=True),
-        if_hz=number(glob, _IF_KEY),
-        center_frequency_hz=number(first, "core:frequency", positive=True),
-        dataset=text(glob, "core:dataset"),
-        description=text(glob, "core:description"),
-        datetime_utc=text(first, "core:datetime"),
-        extra={k[len(NAMESPACE) + 1:]: v for k, v in glob.items()
-               if isinstance(k, str) and k.startswith(NAMESPACE + ":") and k != _IF_KEY},
+        datatype=glob[DATATYPE_KEY],
+        sample_rate_hz=number(glob, SAMPLE_RATE_KEY),
+        if_hz=if_hz,
+        center_frequency_hz=number(first, FREQUENCY_KEY),
+        dataset=glob.get(DATASET_KEY),
+        description=glob.get(DESCRIPTION_KEY),
+        datetime_utc=first.get(DATETIME_KEY),
+        extra={k[len(NAMESPACE) + 1:]: v for k, v in glob.items() if k.startswith(NAMESPACE + ":") and k != _IF_KEY},
     )
