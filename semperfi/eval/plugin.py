@@ -141,19 +141,30 @@ def fingerprint(case, nav_path: str | Path, work: Path, gnss_sdr: bool = True, f
     return out
 
 
-def _gnss_sdr_score(fixes, case, last_s: float = 10.0) -> dict:
-    """GNSS-SDR's fixes as xgen.score has ours: how many, the first (seconds into the recording, which starts at
-    the case's time of day), the horizontal error over the last seconds and at most."""
-    from .gnss_sdr import horizontal_errors_m
+def _gnss_sdr_score(fixes, case, last_s: float = 10.0, rate_hz: float = 10.0) -> dict:
+    """GNSS-SDR's fixes as xgen.score has ours: how many, the first (seconds into the recording: its GGA times are
+    UTC, the case's GPS time), the horizontal error against the truth at each fix's time (the place, or the case's
+    motion) over the last seconds and at most, and the share of its output epochs (rate_hz) from its first fix on
+    that carry one (RTKLIB writes none for an epoch its chi-square test rejects)."""
+    import pymap3d
+
+    from .crosscheck import GPS_UTC_LEAP_S
+    from .metrics import enu_errors
     if not fixes:
         return {"fixes": 0}
     _, clock = case.date.split(",")
     h, m, sec = (float(v) for v in clock.split(":"))
-    t_s = (np.array([f.t_sod_s for f in fixes]) - (3600 * h + 60 * m + sec)) % 86400.0
-    err = horizontal_errors_m(fixes, case.place.lat_deg, case.place.lon_deg)
+    t_s = (np.array([f.t_sod_s for f in fixes]) + GPS_UTC_LEAP_S - (3600 * h + 60 * m + sec)) % 86400.0
+    ecef = np.column_stack(pymap3d.geodetic2ecef(np.array([f.lat_deg for f in fixes]),
+                                                 np.array([f.lon_deg for f in fixes]),
+                                                 np.array([f.height_m for f in fixes])))
+    enu = enu_errors(t_s, ecef, case.truth)
+    err = np.hypot(enu[:, 0], enu[:, 1])
     last = t_s >= t_s[-1] - last_s
+    epochs = max(1, int(round((case.duration_s - t_s[0]) * rate_hz)))
     return {"fixes": len(fixes), "first_fix_s": round(float(t_s[0]), 1),
-            "last_mean_m": round(float(np.mean(err[last])), 2), "max_m": round(float(np.max(err)), 1)}
+            "last_mean_m": round(float(np.mean(err[last])), 2), "max_m": round(float(np.max(err)), 1),
+            "epochs_fixed": round(min(1.0, len(fixes) / epochs), 3)}
 
 
 @dataclass(frozen=True)
