@@ -15,7 +15,6 @@
 """
 
 import argparse
-import csv
 import json
 import subprocess
 import sys
@@ -32,7 +31,7 @@ import numpy as np   # noqa: E402
 from semperfi.defense.config import load_config   # noqa: E402
 from semperfi.defense.defended import DefendedReceiver   # noqa: E402
 from semperfi.eval.crosscheck import read_truth   # noqa: E402
-from semperfi.eval.gnss_sdr import horizontal_errors_m   # noqa: E402
+from semperfi.eval.metrics import Truth, fix_errors, read_fixes   # noqa: E402
 from semperfi.eval.paper import cancellation_iteration_s   # noqa: E402
 from semperfi.receiver.run import run_file   # noqa: E402
 from semperfi.sim.run import simulate_to_file   # noqa: E402
@@ -63,17 +62,14 @@ def real_time(work: Path, fs: float, duration_s: float = 40.0) -> None:
         subprocess.run(cmd, cwd=REPO, check=True, stdout=subprocess.DEVNULL)
         wall = time.perf_counter() - t0
         truth = read_truth(path.with_name(path.stem + ".truth-receiver.csv"))
-        rows = [r for r in csv.DictReader(open(out / "fixes.csv")) if float(r["t_rx_s"]) > duration_s - 10.0]
-        err = horizontal_errors_m([_LatLon(r) for r in rows], truth["lat_deg"][0], truth["lon_deg"][0])
-        states = sorted({r["state"] for r in rows})
+        fixes = read_fixes(out / "fixes.csv")
+        last = fixes["t_rx_s"] > duration_s - 10.0
+        place = Truth(truth["lat_deg"][0], truth["lon_deg"][0], truth["height_m"][0])
+        err = fix_errors(fixes, place).horizontal_m[last]
+        states = sorted(set(fixes["state"][last]))
         print(f"defended receiver, {name}, {fs / 1e6:g} MSa/s ishort: {wall:.1f} s for {duration_s:g} s of signal "
-              f"({duration_s / wall:.2f}x real time); last 10 s: {len(rows)} fixes "
+              f"({duration_s / wall:.2f}x real time); last 10 s: {int(last.sum())} fixes "
               f"{np.mean(err) if len(err) else float('nan'):.2f} m mean, states {states}", flush=True)
-
-
-class _LatLon:
-    def __init__(self, row):
-        self.lat_deg, self.lon_deg = float(row["lat_deg"]), float(row["lon_deg"])
 
 
 def recovery_times(work: Path) -> None:

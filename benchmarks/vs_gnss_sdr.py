@@ -17,7 +17,6 @@ their ratio. Needs gnss-sdr (scripts/crosscheck-gnss-sdr installs it). The recor
 
 
 import argparse
-import csv
 import subprocess
 import sys
 import time
@@ -30,6 +29,7 @@ sys.path.insert(0, str(REPO))
 
 from semperfi.eval.crosscheck import fix_times_rx_s, read_truth   # noqa: E402
 from semperfi.eval.gnss_sdr import horizontal_errors_m, run_gnss_sdr   # noqa: E402
+from semperfi.eval.metrics import Truth, fix_errors, read_fixes   # noqa: E402
 from semperfi.sim.run import simulate_to_file   # noqa: E402
 from semperfi.sim.scenario import load_scenario   # noqa: E402
 
@@ -48,10 +48,9 @@ def timed(fn, repeat: int):
 def ours(path: Path, out: Path, truth: dict, repeat: int) -> dict:
     cmd = [sys.executable, "-m", "semperfi.cli", "run", str(path), "--defense", "off", "--out", str(out)]
     _, walls = timed(lambda: subprocess.run(cmd, cwd=REPO, check=True, stdout=subprocess.DEVNULL), repeat)
-    rows = list(csv.DictReader(open(out / "fixes.csv")))
-    lat, lon = np.array([float(r["lat_deg"]) for r in rows]), np.array([float(r["lon_deg"]) for r in rows])
-    err = _horizontal(lat, lon, truth)
-    return {"fixes": len(rows), "mean": err.mean(), "p95": np.percentile(err, 95), "ttff": float(rows[0]["t_rx_s"]),
+    fixes = read_fixes(out / "fixes.csv")
+    err = fix_errors(fixes, Truth(truth["lat_deg"][0], truth["lon_deg"][0], truth["height_m"][0])).horizontal_m
+    return {"fixes": err.size, "mean": err.mean(), "p95": np.percentile(err, 95), "ttff": float(fixes["t_rx_s"][0]),
             "walls": walls}
 
 
@@ -60,13 +59,6 @@ def gnss_sdr(path: Path, fs: float, out: Path, truth: dict, repeat: int) -> dict
     err = horizontal_errors_m(fixes, truth["lat_deg"][0], truth["lon_deg"][0])
     return {"fixes": len(fixes), "mean": err.mean(), "p95": np.percentile(err, 95),
             "ttff": float(fix_times_rx_s(fixes[:1], truth)[0]), "walls": walls}
-
-
-def _horizontal(lat, lon, truth):
-    class F:   # horizontal_errors_m reads lat_deg / lon_deg attributes
-        def __init__(self, a, b):
-            self.lat_deg, self.lon_deg = a, b
-    return horizontal_errors_m([F(a, b) for a, b in zip(lat, lon)], truth["lat_deg"][0], truth["lon_deg"][0])
 
 
 def main() -> None:

@@ -9,7 +9,8 @@ import numpy as np
 import pymap3d
 import pytest
 
-from semperfi.eval.metrics import Truth, availability, gps_time, run_metrics, time_errors_ns
+from semperfi.eval.metrics import (Truth, availability, errors, gps_time, position_errors, run_metrics,
+                                   time_errors_ns)
 from semperfi.eval.xgen import F_L1_HZ, delayed_scene, scene_reader
 
 LAT, LON, H = 42.3398, -71.0892, 10.0
@@ -42,6 +43,33 @@ def write_events(path, *events):
 
 
 TRUTH = Truth(LAT, LON, H, start_gps=START)
+
+
+@pytest.mark.parametrize("heading_deg", [0.0, 90.0, 225.0])
+def test_every_error_measure_of_one_offset(heading_deg):
+    """3 m east, 4 m north, 2 m down of a vehicle heading `heading_deg`: 5 m horizontal, 2 m vertical, sqrt(29) in
+    3-D, and the along/cross-track split of the same 5 m by the heading (cross positive to the right)."""
+    true = np.array(pymap3d.geodetic2ecef(LAT, LON, H))[None]
+    pos = np.array(pymap3d.enu2ecef(3.0, 4.0, -2.0, LAT, LON, H))[None]
+    h = np.radians(heading_deg)
+    v = np.array(pymap3d.enu2uvw(5.0 * np.sin(h), 5.0 * np.cos(h), 0.0, LAT, LON))[None]
+    e = errors(pos, true, v)
+    assert (e.east_m[0], e.north_m[0], e.up_m[0]) == pytest.approx((3.0, 4.0, -2.0), abs=1e-6)
+    assert (e.horizontal_m[0], e.vertical_m[0], e.three_d_m[0]) == pytest.approx((5.0, 2.0, 29 ** 0.5), abs=1e-6)
+    assert e.along_m[0] == pytest.approx(3.0 * np.sin(h) + 4.0 * np.cos(h), abs=1e-6)
+    assert e.cross_m[0] == pytest.approx(3.0 * np.cos(h) - 4.0 * np.sin(h), abs=1e-6)
+    assert np.isnan(errors(pos, true).along_m[0])          # a truth that does not move has no track
+
+
+def test_position_errors_take_the_track_from_a_motion_file(tmp_path):
+    """A receiver flying north at 5 m/s, fixes 2 m to its right: 2 m across, nothing along, at every fix."""
+    t = np.arange(0.0, 10.01, 0.1)
+    track = np.column_stack([t, *pymap3d.enu2ecef(0.0 * t, 5.0 * t, 0.0 * t, LAT, LON, H)])
+    motion = tmp_path / "m.csv"
+    np.savetxt(motion, track, delimiter=",")
+    fixes = np.column_stack(pymap3d.enu2ecef(2.0 + 0 * t, 5.0 * t, 0.0 * t, LAT, LON, H))[10:90]
+    e = position_errors(t[10:90], fixes, Truth(LAT, LON, H, str(motion)))
+    assert np.allclose(e.cross_m, 2.0, atol=1e-3) and np.allclose(e.along_m, 0.0, atol=1e-3)
 
 
 def test_availability_counts_epochs_and_the_longest_gap():

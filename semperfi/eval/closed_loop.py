@@ -21,9 +21,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import pymap3d
 
-from ..gps.geometry import enu_rotation, geodetic_to_ecef
 from ..sim.scenario import load_scenario
+from .metrics import errors
 
 CLOSED_LOOP_SETTINGS = ["attacker.enabled=true", "attacker.power_advantage_db=6.0", "attacker.offset_east_m=1000.0",
                         "signal.fs_hz=2e6", 'signal.format="ishort"', "constellation.max_satellites=8"]
@@ -67,19 +68,12 @@ class ClosedLoop:
         if not self.fixes or not self.truth:
             return np.empty(0), np.empty(0)
         t_truth = np.array([float(r["t_s"]) for r in self.truth])
-        lat = np.array([float(r["lat_deg"]) for r in self.truth])
-        lon = np.array([float(r["lon_deg"]) for r in self.truth])
-        h = np.array([float(r["height_m"]) for r in self.truth])
         rows = [r for r in self.fixes if state is None or r["state"] == state]
         t = np.array([float(r["t_rx_s"]) for r in rows])
-        errors = []
-        for r, tk in zip(rows, t):
-            la, lo, hh = (np.interp(tk, t_truth, a) for a in (lat, lon, h))
-            truth = geodetic_to_ecef(np.radians(la), np.radians(lo), hh)
-            enu = enu_rotation(np.radians(la), np.radians(lo)) @ (
-                np.array([float(r[k]) for k in ("x_m", "y_m", "z_m")]) - truth)
-            errors.append(np.hypot(enu[0], enu[1]))
-        return t, np.array(errors)
+        true = np.column_stack(pymap3d.geodetic2ecef(*(np.interp(t, t_truth, [float(r[k]) for r in self.truth])
+                                                       for k in ("lat_deg", "lon_deg", "height_m"))))
+        pos = np.array([[float(r[k]) for k in ("x_m", "y_m", "z_m")] for r in rows]).reshape(-1, 3)
+        return t, errors(pos, true).horizontal_m
 
 
 def _free_port(kind=socket.SOCK_STREAM) -> int:

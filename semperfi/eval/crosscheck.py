@@ -20,11 +20,13 @@ from pathlib import Path
 
 import click
 import numpy as np
+import pymap3d
 
 from ..errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, BadInput
 from ..iq.formats import format_by_name, format_by_sigmf_datatype
-from .gnss_sdr import (ITEM_TYPES, IONO_MODELS, TROP_MODELS, LOG_NAME, Fix, error_summary_m, gnss_sdr_version,
-                       horizontal_errors_m, run_gnss_sdr)
+from .gnss_sdr import (ITEM_TYPES, IONO_MODELS, TROP_MODELS, LOG_NAME, Fix, error_summary_m, fixes_ecef,
+                       gnss_sdr_version, horizontal_errors_m, run_gnss_sdr)
+from .metrics import errors
 
 GPS_UTC_LEAP_S = 18   # GPS - UTC since 2017-01-01; GNSS-SDR's RTKLIB turns GPS time into UTC with its own table
 
@@ -96,15 +98,12 @@ def fix_times_rx_s(fixes: list[Fix], truth: dict[str, np.ndarray], leap_s: float
 def track_errors_m(fixes: list[Fix], truth: dict[str, np.ndarray], leap_s: float = GPS_UTC_LEAP_S) -> np.ndarray:
     """Horizontal error of each fix against the truth position interpolated at the fix's time (nan outside the
     truth's time span)."""
-    t_fix = fix_times_rx_s(fixes, truth, leap_s)
-    t = truth["t_rx_s"]
-    out = np.full(len(fixes), np.nan)
-    for i, (fix, tf) in enumerate(zip(fixes, t_fix)):
-        if t[0] <= tf <= t[-1]:
-            lat = float(np.interp(tf, t, truth["lat_deg"]))
-            lon = float(np.interp(tf, t, np.unwrap(truth["lon_deg"], period=360.0)))
-            out[i] = horizontal_errors_m([fix], lat, lon)[0]
-    return out
+    t_fix, t = fix_times_rx_s(fixes, truth, leap_s), truth["t_rx_s"]
+    true = np.column_stack(pymap3d.geodetic2ecef(np.interp(t_fix, t, truth["lat_deg"]),
+                                                 np.interp(t_fix, t, np.unwrap(truth["lon_deg"], period=360.0)),
+                                                 np.interp(t_fix, t, truth["height_m"])))
+    out = errors(fixes_ecef(fixes), true).horizontal_m
+    return np.where((t_fix >= t[0]) & (t_fix <= t[-1]), out, np.nan)
 
 
 _PATH = click.Path(path_type=Path)

@@ -15,29 +15,24 @@ from typing import Iterator
 
 import numpy as np
 
-from .. import config
-from ..defense.config import DEFAULTS as DEFENSE
+from ..defense.config import load_config
 from ..defense.guard import SpoofGuard
 from ..receiver.types import TRUSTED_STATES
 from ..gps.geometry import enu_rotation, geodetic_to_ecef
 from ..iq import open_iq
 from ..receiver.acquisition import DopplerGrid, acquire
-from ..receiver.config import DEFAULTS as RECEIVER
 from ..receiver.plots import plot_before_after
 from ..receiver.run import run_file
 from ..sim.scenario import load_scenario
+from .metrics import Truth, fix_errors, read_fixes
 
 BEFORE_AFTER_LAG_S = 2.0   # the before/after look comes this long after the first cancellation: settled, verified
 
-def _horizontal_errors_m(fixes_csv: Path, lat_deg: float, lon_deg: float, height_m: float, state: str | None = None):
-    import csv
-    rows = [r for r in csv.DictReader(open(fixes_csv)) if state is None or r["state"] == state]
-    if not rows:
+def _horizontal_errors_m(fixes_csv: Path, lat_deg: float, lon_deg: float, height_m: float) -> np.ndarray:
+    f = read_fixes(fixes_csv)
+    if not f or not f["t_rx_s"].size:
         return np.empty(0)
-    pos = np.array([[float(r[k]) for k in ("x_m", "y_m", "z_m")] for r in rows])
-    enu = (pos - geodetic_to_ecef(np.radians(lat_deg), np.radians(lon_deg), height_m)) @ \
-        enu_rotation(np.radians(lat_deg), np.radians(lon_deg)).T
-    return np.hypot(enu[:, 0], enu[:, 1])
+    return fix_errors(f, Truth(lat_deg, lon_deg, height_m)).horizontal_m
 
 
 def _before_after_plot(path: Path, cfg: dict, out_png: Path, at_s: float) -> None:
@@ -125,7 +120,7 @@ def run_demo(out_dir: str | Path, duration_s: float, sets: list[str], progress: 
     for prn, stages in sorted(summary.get("attenuation_db", {}).items(), key=lambda kv: int(kv[0])):
         values = [v for st in stages for v in st["attenuation_db"]]
         yield f"  PRN {int(prn):>2}: spoofer attenuated by {values[-1] if values else '?'} dB"
-    receiver_cfg = config.load({**RECEIVER, **DEFENSE}, None, [])
+    receiver_cfg = load_config(None, [])
     data = out_dir / "world.bin"
     run_file(data, None, None, None, receiver_cfg, out_dir / "conventional", live=progress)
     spoofed = _horizontal_errors_m(out_dir / "conventional" / "fixes.csv", r["lat_deg"], r["lon_deg"], r["height_m"])
@@ -135,7 +130,7 @@ def run_demo(out_dir: str | Path, duration_s: float, sets: list[str], progress: 
     plots = "tracks.png"
     cancelled = loop.first("cancellation_start")
     if cancelled is not None:
-        _before_after_plot(data, config.load({**RECEIVER, **DEFENSE}, None, ['defense.mode="full"']),
+        _before_after_plot(data, load_config(None, ['defense.mode="full"']),
                            out_dir / "acquisition-before-after.png", cancelled["t_rx_s"] + BEFORE_AFTER_LAG_S)
         plots += ", acquisition-before-after.png"
     yield (f"outputs in {out_dir}: receiver/ (fixes.csv, NMEA, GPX, GeoJSON, RINEX, events.jsonl), flight.jsonl, "

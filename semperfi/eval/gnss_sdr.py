@@ -358,25 +358,20 @@ def _stop(proc: subprocess.Popen, grace_s: float = 5.0) -> None:
 
 # ----------------------------------------------------------------------------------------------------- errors
 
-def enu_errors_m(fixes, lat_deg: float, lon_deg: float, height_m: float | None = None) -> np.ndarray:
-    """East/north/up offset (N x 3, metres) of each fix from a reference point, in the reference's local tangent
-    plane (WGS-84, pymap3d). With `height_m` None the fixes are put at the reference's height, so 'up' is 0 and
-    east/north are the purely horizontal offsets."""
+def fixes_ecef(fixes) -> np.ndarray:
+    """(n, 3) ECEF positions (m) of fixes with lat_deg, lon_deg, height_m (WGS-84, pymap3d)."""
     if len(fixes) == 0:
         return np.zeros((0, 3))
-    lats = np.array([f.lat_deg for f in fixes], dtype=float)
-    lons = np.array([f.lon_deg for f in fixes], dtype=float)
-    ref_h = 0.0 if height_m is None else float(height_m)
-    hs = np.full_like(lats, ref_h) if height_m is None else np.array([f.height_m for f in fixes], dtype=float)
-    return np.column_stack(pymap3d.geodetic2enu(lats, lons, hs, lat_deg, lon_deg, ref_h))
+    return np.column_stack(pymap3d.geodetic2ecef(np.array([f.lat_deg for f in fixes], dtype=float),
+                                                 np.array([f.lon_deg for f in fixes], dtype=float),
+                                                 np.array([f.height_m for f in fixes], dtype=float)))
 
 
-def horizontal_errors_m(fixes, lat_deg: float, lon_deg: float) -> np.ndarray:
-    """Horizontal distance (metres) of each fix from (lat_deg, lon_deg): the east/north length of the offset in
-    the reference's local tangent plane, both points taken at the same height (exact for any distance a receiver
-    error can have)."""
-    enu = enu_errors_m(fixes, lat_deg, lon_deg)
-    return np.hypot(enu[:, 0], enu[:, 1])
+def horizontal_errors_m(fixes, lat_deg: float, lon_deg: float, height_m: float = 0.0) -> np.ndarray:
+    """Horizontal distance (m) of each fix from a place, in the place's local tangent plane (metrics.errors)."""
+    from .metrics import errors
+    place = np.array(pymap3d.geodetic2ecef(lat_deg, lon_deg, height_m))
+    return errors(fixes_ecef(fixes), np.tile(place, (len(fixes), 1))).horizontal_m
 
 
 def error_summary_m(errors_m: np.ndarray) -> dict:

@@ -15,6 +15,7 @@ import math
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pymap3d
@@ -89,11 +90,57 @@ def truth_ecef(t_s: np.ndarray, truth: Truth) -> np.ndarray:
     return np.tile(np.array(pymap3d.geodetic2ecef(truth.lat_deg, truth.lon_deg, truth.height_m)), (t_s.size, 1))
 
 
-def enu_errors(t_s: np.ndarray, pos_ecef_m: np.ndarray, truth: Truth) -> np.ndarray:
-    """(n, 3) east, north, up error of each position from the truth at its time (metres)."""
-    d = np.asarray(pos_ecef_m, dtype=float).reshape(-1, 3) - truth_ecef(t_s, truth)
-    e, n, u = pymap3d.ecef2enuv(d[:, 0], d[:, 1], d[:, 2], truth.lat_deg, truth.lon_deg)
-    return np.column_stack([e, n, u])
+class Errors(NamedTuple):
+    """A receiver's position errors against the truth, each an array (m): in the truth's local east/north/up,
+    horizontal, vertical (absolute), 3-D, and along and across the truth's horizontal track (across: positive to
+    the right of it; both nan where the truth does not move)."""
+    east_m: np.ndarray
+    north_m: np.ndarray
+    up_m: np.ndarray
+    horizontal_m: np.ndarray
+    vertical_m: np.ndarray
+    three_d_m: np.ndarray
+    along_m: np.ndarray
+    cross_m: np.ndarray
+
+    @property
+    def enu(self) -> np.ndarray:
+        return np.column_stack([self.east_m, self.north_m, self.up_m])
+
+
+MOVING_M_S = 0.1          # the truth's track has a direction from this speed on
+
+
+def errors(pos_ecef_m, true_ecef_m, velocity_ecef_m_s=None) -> Errors:
+    """Every error measure of positions against true positions (both (n, 3) ECEF, metres; the true velocity, when
+    given, sets the along/cross-track axes), in the local frame at each true position (WGS-84, pymap3d)."""
+    pos = np.asarray(pos_ecef_m, dtype=float).reshape(-1, 3)
+    true = np.asarray(true_ecef_m, dtype=float).reshape(-1, 3)
+    lat, lon, _ = pymap3d.ecef2geodetic(true[:, 0], true[:, 1], true[:, 2])
+    d = pos - true
+    e, n, u = (np.asarray(c, dtype=float) for c in pymap3d.ecef2enuv(d[:, 0], d[:, 1], d[:, 2], lat, lon))
+    along = cross = np.full(e.shape, np.nan)
+    if velocity_ecef_m_s is not None:
+        v = np.asarray(velocity_ecef_m_s, dtype=float).reshape(-1, 3)
+        ve, vn, _ = (np.asarray(c, dtype=float) for c in pymap3d.ecef2enuv(v[:, 0], v[:, 1], v[:, 2], lat, lon))
+        speed = np.hypot(ve, vn)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ue, un = (np.where(speed > MOVING_M_S, c / speed, np.nan) for c in (ve, vn))
+        along, cross = e * ue + n * un, e * un - n * ue
+    horizontal = np.hypot(e, n)
+    return Errors(e, n, u, horizontal, np.abs(u), np.hypot(horizontal, u), along, cross)
+
+
+def position_errors(t_s: np.ndarray, pos_ecef_m: np.ndarray, truth: Truth) -> Errors:
+    """Every error measure of positions at receiver times t_s against a Truth (its place or motion file)."""
+    t_s = np.asarray(t_s, dtype=float)
+    velocity = (truth_ecef(t_s + 0.05, truth) - truth_ecef(t_s - 0.05, truth)) / 0.1 if truth.motion else None
+    return errors(pos_ecef_m, truth_ecef(t_s, truth), velocity)
+
+
+def fix_errors(fixes: dict[str, np.ndarray], truth: Truth) -> Errors:
+    """position_errors of a fixes.csv read by read_fixes (t_rx_s, x_m, y_m, z_m)."""
+    return position_errors(fixes["t_rx_s"], np.column_stack([fixes["x_m"], fixes["y_m"], fixes["z_m"]]), truth)
 
 
 def time_errors_ns(fixes: dict[str, np.ndarray], start_gps: tuple[int, float]) -> np.ndarray | None:
@@ -159,8 +206,8 @@ def run_metrics(fixes_csv: str | Path, events_jsonl: str | Path, truth: Truth, d
                  "first_fix_s": _r(t[0], 2) if n else None, "clean_first_fix_s": _r(clean_first_fix_s, 2)}
     states = f.get("state", np.full(n, "nominal")).astype(str)
     if n:
-        enu = enu_errors(t, np.column_stack([f["x_m"], f["y_m"], f["z_m"]]), truth)
-        horiz = np.hypot(enu[:, 0], enu[:, 1])
+        err = fix_errors(f, truth)
+        enu, horiz = err.enu, err.horizontal_m
     else:
         enu, horiz = np.zeros((0, 3)), np.zeros(0)
     good = np.isin(states, TRUSTED_STATES)

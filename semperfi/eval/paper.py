@@ -23,7 +23,7 @@ from ..defense.identifier import MIN_SIGNATURE_M, PAPER_THRESHOLD_M
 from ..flight.maneuver import ManeuverLimits, draw
 from ..iq.sigmf import sidecar_path
 from ..receiver.types import TRUSTED_STATES
-from .metrics import Truth, enu_errors, read_events, read_fixes, run_metrics
+from .metrics import Truth, fix_errors, position_errors, read_events, read_fixes, run_metrics
 from .xgen import PLACES, Case, maneuver_case, recording_s, run_case, takeover_case
 
 C_M_S = 299792458.0
@@ -184,8 +184,8 @@ def _maneuver_tracks(run: dict, ins_csv: Path, at_s: float, length_s: float):
     if keep.sum() < 2:
         return np.zeros(0), np.zeros((0, 2)), np.zeros((0, 2))
     t = t[keep]
-    enu = enu_errors(t, np.column_stack([f["x_m"], f["y_m"], f["z_m"]])[keep],
-                     Truth(PLACE.lat_deg, PLACE.lon_deg, PLACE.height_m))
+    enu = position_errors(t, np.column_stack([f["x_m"], f["y_m"], f["z_m"]])[keep],
+                          Truth(PLACE.lat_deg, PLACE.lon_deg, PLACE.height_m)).enu
     gps = enu[:, [1, 0]] - enu[0, [1, 0]]
     ins_ne = np.column_stack([np.interp(t, ins[:, 0], ins[:, 1]), np.interp(t, ins[:, 0], ins[:, 2])])
     return t, gps, ins_ne - ins_ne[0]
@@ -418,8 +418,7 @@ def dynamic_push(ctx: Context) -> Figure:
         fx = read_fixes(Path(run["out"]) / "fixes.csv")
         if not fx or not fx["t_rx_s"].size:
             continue
-        enu = enu_errors(fx["t_rx_s"], np.column_stack([fx["x_m"], fx["y_m"], fx["z_m"]]),
-                         Truth(PLACE.lat_deg, PLACE.lon_deg, PLACE.height_m))
+        enu = fix_errors(fx, Truth(PLACE.lat_deg, PLACE.lon_deg, PLACE.height_m)).enu
         east, north = enu[:, 0], fx["t_rx_s"] * p.fly_m_s + enu[:, 1]
         if not defended:
             ax.plot(east, north, "r.", ms=2, label="conventional receiver")
@@ -556,8 +555,7 @@ def integrity(ctx: Context) -> Figure:
         if not fx or not fx["t_rx_s"].size or "hpl_m" not in fx:
             continue
         good = np.isin(fx["state"].astype(str), TRUSTED_STATES)
-        enu = enu_errors(fx["t_rx_s"], np.column_stack([fx["x_m"], fx["y_m"], fx["z_m"]]), r["truth"])
-        errs.append(np.hypot(enu[:, 0], enu[:, 1])[good])
+        errs.append(fix_errors(fx, r["truth"]).horizontal_m[good])
         hpls.append(fx["hpl_m"][good])
         states.append(fx["state"].astype(str)[good])
     err = np.concatenate(errs) if errs else np.zeros(0)

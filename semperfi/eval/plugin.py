@@ -146,20 +146,15 @@ def _gnss_sdr_score(fixes, case, last_s: float = 10.0, rate_hz: float = 10.0) ->
     UTC, the case's GPS time), the horizontal error against the truth at each fix's time (the place, or the case's
     motion) over the last seconds and at most, and the share of its output epochs (rate_hz) from its first fix on
     that carry one (RTKLIB writes none for an epoch its chi-square test rejects)."""
-    import pymap3d
-
     from .crosscheck import GPS_UTC_LEAP_S
-    from .metrics import enu_errors
+    from .gnss_sdr import fixes_ecef
+    from .metrics import position_errors
     if not fixes:
         return {"fixes": 0}
     _, clock = case.date.split(",")
     h, m, sec = (float(v) for v in clock.split(":"))
     t_s = (np.array([f.t_sod_s for f in fixes]) + GPS_UTC_LEAP_S - (3600 * h + 60 * m + sec)) % 86400.0
-    ecef = np.column_stack(pymap3d.geodetic2ecef(np.array([f.lat_deg for f in fixes]),
-                                                 np.array([f.lon_deg for f in fixes]),
-                                                 np.array([f.height_m for f in fixes])))
-    enu = enu_errors(t_s, ecef, case.truth)
-    err = np.hypot(enu[:, 0], enu[:, 1])
+    err = position_errors(t_s, fixes_ecef(fixes), case.truth).horizontal_m
     last = t_s >= t_s[-1] - last_s
     epochs = max(1, int(round((case.duration_s - t_s[0]) * rate_hz)))
     return {"fixes": len(fixes), "first_fix_s": round(float(t_s[0]), 1),

@@ -31,7 +31,7 @@ from ..flight.maneuver import Leg, ManeuverLimits, plan_trajectory
 from ..iq.sigmf import build_sigmf_meta, sidecar_path, write_sigmf_meta
 from ..receiver.types import TRUSTED_STATES
 from .flightpath import MOTION_DT_S, ins_track, write_motion_csv
-from .metrics import Truth, enu_errors, gps_time, read_fixes
+from .metrics import Truth, fix_errors, gps_time, read_fixes
 
 GPS_SDR_SIM = "gps-sdr-sim"
 OURS = "ours"                  # our own simulator (semperfi.eval.ours)
@@ -363,10 +363,8 @@ def score(fixes_csv: Path, place: Place, last_s: float = 10.0, bad_m: float = 10
     if not f or not f["t_rx_s"].size:
         return {"fixes": 0}
     t = f["t_rx_s"]
-    enu = enu_errors(t, np.column_stack([f["x_m"], f["y_m"], f["z_m"]]),
-                     Truth(place.lat_deg, place.lon_deg, place.height_m, motion))
-    east, north = enu[:, 0], enu[:, 1]
-    err = np.hypot(east, north)
+    e = fix_errors(f, Truth(place.lat_deg, place.lon_deg, place.height_m, motion))
+    east, north, err = e.east_m, e.north_m, e.horizontal_m
     states = f["state"].astype(str) if "state" in f else np.full(t.size, "nominal")
     last = t >= t[-1] - last_s
     good = np.isin(states, TRUSTED_STATES)
