@@ -546,3 +546,30 @@ def test_a_15_db_attacker_on_every_prn_is_cancelled_without_cancelling_a_twin(tm
     assert not called_good, called_good[:5]
     last = [_horizontal_m(f) for f in fixes if float(f["t_rx_s"]) > duration - 4.0]
     assert last and np.mean(last) < 3.0, (len(last), np.mean(last) if last else None)
+
+
+def test_the_defended_chain_does_not_search_again_what_the_full_search_found_absent(tmp_path):
+    """One search of the sky, not two (issue 27): the guard's full search looks at every PRN over 40 ms, more
+    sensitively than the chain's cold search; the PRNs it found nothing of are not searched cold by the chain until
+    the next full search is due. The same satellites are tracked either way."""
+    path = tmp_path / "sky.bin"
+    simulate_to_file(load_scenario(None, ["signal.fs_hz=2e6", "time.duration_s=8.0", "constellation.max_satellites=8",
+                                          'signal.format="ishort"']), path)
+    made = {}
+
+    def run(name: str, factory):
+        def build(*args, **kwargs):
+            made[name] = factory(*args, **kwargs)
+            return made[name]
+        run_file(path, None, None, None, load_config(None, ["acquisition.reacquire_s=1.0"]), tmp_path / name, None,
+                 receiver_factory=build)
+        rx = made[name]
+        return getattr(rx, "inner", rx)
+    from semperfi.receiver.chain import Receiver
+    plain, defended = run("plain", Receiver), run("defended", DefendedReceiver)
+    visible = {int(r["prn"]) for r in csv.DictReader(open(path.with_name("sky.truth-signals.csv")))}
+    assert set(plain.channels) == set(defended.channels) == visible
+    # the plain chain searches the 24 absent PRNs every second (8 s: 7 searches or more after the first); the
+    # defended one at most twice before the guard's first full search reaches it, and none of them after
+    assert defended.stats.cold_searched <= 2 * 32 < 7 * 24 <= plain.stats.cold_searched, (
+        defended.stats.cold_searched, plain.stats.cold_searched)

@@ -113,6 +113,7 @@ class DefendedReceiver:
             self.inner.suspect_prns = {p for p in self.inner.channels if self.guard.suspect(p)}
         if self.inner.rectifier is not None:
             self.inner.rectifier.update(self.guard.canceller)
+        self.inner.absent_prns = self.guard.absent_now()   # one search of the sky, not two
         self.inner.feed(cleaned)
         if self.guard.d["mode"] == "full":
             self._follow_hypotheses()

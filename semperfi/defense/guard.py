@@ -51,6 +51,7 @@ DEEP_CROSS_TALK_BLOCK_S = 1e-3   # cross-talk judged per code period (is_cross_t
 BEAT_STALE_S = 1.0     # a time push's beat unseen on a PRN this long: its separation is no longer known
 COMMON_WAIT_S = 1.0    # a beat on a few PRNs alike, no alarm yet: how long the others have to show it too
 MAX_SWAPS = 2          # a PRN whose cancelled peak is found legitimate this often is given up
+ABSENT_MARGIN_S = 1.0  # a full search's absent PRNs stand this long past the next one's due time (then: search again)
 EXAMINE_MAX_PEAKS = 16  # a strong spoofer's Doppler and code sidelobes are local maxima too: room for its twin
 
 
@@ -82,6 +83,8 @@ class SpoofGuard:
         self._cleaned = 0                                # cleaned samples produced
         self._next_exam = 0
         self._next_full = 0
+        self.absent_prns: frozenset[int] = frozenset()   # what the latest full search found nothing of ...
+        self._absent_until = 0                           # ... and until when that stands
         self.present_prns: set[int] = set()
         self.alarm_t_s: float | None = None
         self.alarmed_prns: set[int] = set()
@@ -176,6 +179,11 @@ class SpoofGuard:
                        self.if_hz, 2, EXAMINE_NONCOHERENT, a["pfa"], max(EXAMINE_MAX_PEAKS, a["max_peaks"]),
                        excise=True)   # a tone is no satellite, and no spoofer either
 
+    def absent_now(self) -> frozenset[int]:
+        """The PRNs the latest full search (every PRN, 40 ms: more sensitive than the chain's) found nothing of,
+        while it is recent enough to stand for the chain's own cold search of the same samples."""
+        return self.absent_prns if self._seen < self._absent_until else frozenset()
+
     def _look(self) -> tuple[np.ndarray, int]:
         """The window an examination searches, and its first sample's absolute index. Once spoofed signals are
         being cancelled, the cleaned one: a strong attacker's signals on a dozen PRNs raise the floor every
@@ -202,6 +210,9 @@ class SpoofGuard:
         if full:
             self._next_full = self._seen + int(self.d["full_search_every_s"] * self.fs_hz)
         cafs = self._acquire(x, prns, 0.0, self.cfg["acquisition"]["doppler_max_hz"])
+        if full:
+            self.absent_prns = frozenset(p for p, c in cafs.items() if c.best is None)
+            self._absent_until = self._seen + int((self.d["full_search_every_s"] + ABSENT_MARGIN_S) * self.fs_hz)
         # a strong attacker's cross-talk puts peaks on absent PRNs: examining them every look would cost the most
         self.present_prns |= {p for p, c in cafs.items() if examinable(c.best, c, cafs, self.detector.cfg, self.fs_hz)}
         self._last_cafs.update(cafs)

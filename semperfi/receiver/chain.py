@@ -56,6 +56,7 @@ class RunStats:
     subframes: int = 0
     parity_errors: int = 0
     samples: int = 0
+    cold_searched: int = 0        # PRNs searched cold (not tracked, not lost moments ago), all searches together
 
 
 class RawObservation(NamedTuple):
@@ -89,6 +90,9 @@ class Receiver:
         self.channels: dict[int, Channel] = {}
         self.decoders: dict[int, NavDecoder] = {}
         self.warm: dict[int, float] = {}            # PRN -> last Doppler, for warm re-acquisition after a loss
+        # PRNs a more sensitive search of these samples elsewhere found absent moments ago (the defence's full search,
+        # which looks at every PRN over 40 ms): not searched cold again until it says otherwise
+        self.absent_prns: frozenset[int] = frozenset()
         self.subframes_by_prn: dict[int, int] = {}
         self.stats = RunStats()
         self.iono = assisted.iono if assisted else None
@@ -160,7 +164,8 @@ class Receiver:
         samples = self._buf[-self.acq_samples:]
         t_s = start / self.fs_hz
         free = self.cfg["tracking"]["channels"] - len(self.channels)
-        cold = [p for p in self.prns if p not in self.channels and p not in self.warm]
+        cold = [p for p in self.prns if p not in self.channels and p not in self.warm and p not in self.absent_prns]
+        self.stats.cold_searched += len(cold)
         cafs = self._search(samples, cold) if cold else {}
         for prn, doppler in list(self.warm.items()):
             if prn not in self.channels:
