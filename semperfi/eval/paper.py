@@ -161,10 +161,7 @@ def maneuvers(ctx: Context) -> Figure:
     ax.set(xlabel="east (m)", ylabel="north (m)", aspect="equal",
            title=f"{len(drawn)} maneuvers (seed {MANEUVER_SEED}; a UAV draws from the OS's random source)")
     ax.legend(loc="lower left", fontsize=8)
-    f.tight_layout()
-    f.savefig(ctx.png(fig.key), dpi=110)
-    plt.close(f)
-    fig.png = ctx.png(fig.key).name
+    _save(ctx, fig, f)
     cross = [float(np.max(np.abs(m.east_m))) for m in drawn]
     fig.rows = [("flight time", "10-20 s", _span([m.duration_s for m in drawn], " s")),
                 ("distance from the trigger at the end", ">= 30 m", _span([m.end_distance_m for m in drawn], " m")),
@@ -216,10 +213,7 @@ def tracks(ctx: Context) -> Figure:
     b.axhline(PAPER_THRESHOLD_M, color="k", ls="--", lw=0.8, label=f"paper's threshold {PAPER_THRESHOLD_M:g} m")
     b.set(xlabel="time into the maneuver (s)", ylabel="|GPS - INS| displacement (m)", yscale="log")
     b.legend(fontsize=8)
-    f.tight_layout()
-    f.savefig(ctx.png(fig.key), dpi=110)
-    plt.close(f)
-    fig.png = ctx.png(fig.key).name
+    _save(ctx, fig, f)
     fig.rows = [("deviation without an attacker", "trivial", _fmt(np.max(dev[0]) if dev[0].size else None, " m max")),
                 ("deviation under a static spoofer (1 km, +6 dB)", "significant",
                  _fmt(np.max(dev[1]) if dev[1].size else None, " m max")),
@@ -280,10 +274,7 @@ def amplitude(ctx: Context) -> Figure:
     ax.set(xlabel="attacker power advantage (dB)", ylabel="amplitude estimation accuracy (%)",
            title=f"eq. 10 at 45 dB-Hz, 20 ms, {AMPLITUDE_TRIALS} seeds per point")
     ax.legend(fontsize=8)
-    f.tight_layout()
-    f.savefig(ctx.png(fig.key), dpi=110)
-    plt.close(f)
-    fig.png = ctx.png(fig.key).name
+    _save(ctx, fig, f)
     return fig
 
 
@@ -327,10 +318,7 @@ def static(ctx: Context) -> Figure:
           title=f"+{p.static_db:g} dB, synchronized")
     b.plot([q[1] for q in ok if q[1]], [q[2] for q in ok if q[1]], "o-")
     b.set(xlabel="mean peak separation (ns)", ylabel="recovered offset (m)", yscale="log")
-    f.tight_layout()
-    f.savefig(ctx.png(fig.key), dpi=110)
-    plt.close(f)
-    fig.png = ctx.png(fig.key).name
+    _save(ctx, fig, f)
     paper = {6200.0: "2 m (simulator); live 4.1 km: 6 m"}
     fig.rows = [(f"spoofed {o / 1e3:g} km: recovered offset (separation)", paper.get(o, "-"),
                  f"{_fmt(e, ' m', 2)} ({_fmt(s, ' ns', 0)}, available {_pct(av)})")
@@ -437,10 +425,7 @@ def dynamic_push(ctx: Context) -> Figure:
     ax.set(xlabel="east of the legitimate path (m)", ylabel="north (m)",
            title=f"push {p.takeover_m_s:g} m/s east after {p.takeover_hold_s:g} s, +3 dB")
     ax.legend(fontsize=8)
-    f.tight_layout()
-    f.savefig(ctx.png(fig.key), dpi=110)
-    plt.close(f)
-    fig.png = ctx.png(fig.key).name
+    _save(ctx, fig, f)
     fig.rows = [("mean deviation of the recovered path, east", "10.1 m", _fmt(r.get("recovered_east_m"), " m", 2)),
                 ("mean deviation of the recovered path, north", "2.6 m", _fmt(r.get("recovered_north_m"), " m", 2)),
                 ("availability after the verdict (longest gap)", "-",
@@ -470,10 +455,7 @@ def time_push(ctx: Context) -> Figure:
     ax.axvline(p.push_at_s, color="k", ls="--", lw=0.8, label="push starts")
     ax.set(xlabel="time (s)", ylabel="time error (ns)", ylim=(-1500, 1500))
     ax.legend(fontsize=8)
-    f.tight_layout()
-    f.savefig(ctx.png(fig.key), dpi=110)
-    plt.close(f)
-    fig.png = ctx.png(fig.key).name
+    _save(ctx, fig, f)
     fig.rows = [("largest time error of a fix called good", "not shown", _fmt(r["time_err_max_ns"], " ns")),
                 ("good fixes beyond their TPL", "not shown", str(r["good_beyond_tpl"])),
                 ("time error over the last 10 s: SemperFi / conventional", "not shown",
@@ -572,16 +554,21 @@ def integrity(ctx: Context) -> Figure:
     ax.set(xscale="log", yscale="log", xlabel="horizontal error (m)", ylabel="HPL (m)",
            title=f"{int(fin.sum())} good fixes, {len(errs)} runs")
     ax.legend(fontsize=8)
-    f.tight_layout()
-    f.savefig(ctx.png(fig.key), dpi=110)
-    plt.close(f)
-    fig.png = ctx.png(fig.key).name
+    _save(ctx, fig, f)
     beyond = int(np.sum(err[np.isfinite(hpl)] > hpl[np.isfinite(hpl)]))
     fig.rows = [("fixes called good (every defended run)", "not shown", str(err.size)),
                 ("of them beyond their HPL (misleading information)", "not shown", str(beyond)),
                 ("largest error / HPL ratio", "not shown",
                  _fmt(float(np.max(err[fin] / hpl[fin])) if fin.any() else None, "", 3))]
     return fig
+
+
+def _save(ctx: Context, fig: Figure, f) -> None:
+    """Lay out, write and close a matplotlib figure as the figure's PNG."""
+    f.tight_layout()
+    f.savefig(ctx.png(fig.key), dpi=110)
+    _pyplot().close(f)
+    fig.png = ctx.png(fig.key).name
 
 
 def _lognorm():
