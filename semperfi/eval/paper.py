@@ -66,7 +66,7 @@ PLANS = {
                   push_s=40.0, push_at_s=18.0, timing_fs_hz=4e6, timing_repeat=1),
     # CI-sized: one short static attack and what needs no recording
     "tiny": Plan("tiny", fs_hz=2.0e6, static_s=20.0, offsets_m=(1000.0,), maneuvers=6, timing_fs_hz=2e6,
-                 timing_repeat=1, figures=("maneuvers", "static", "availability", "integrity", "timing")),
+                 timing_repeat=1, figures=("static", "availability", "integrity", "maneuvers", "timing")),
 }
 
 
@@ -257,7 +257,7 @@ def _amplitude_errors(case: int, advantage_db: float, seed: int) -> list[float]:
 def amplitude(ctx: Context) -> Figure:
     """Amplitude estimation accuracy in the paper's four cases against attacker power (Fig. 'amplitude
     estimation accuracy')."""
-    fig = Figure("amplitude", "Amplitude estimation accuracy in four cases, against attacker power")
+    fig = Figure("amplitude", "Amplitude estimation accuracy in four cases, against attacker power (our simulator)")
     plt = _pyplot()
     f, ax = plt.subplots(figsize=(7, 4))
     for case, name in AMPLITUDE_CASES.items():
@@ -473,10 +473,15 @@ def timing(ctx: Context) -> Figure:
     fig.rows = [(f"one iteration: {n_prns} spoofed PRNs, 1 s at {ctx.plan.timing_fs_hz / 1e6:g} MSa/s",
                  "Xeon 2.12 s, Core i7 2.79 s, Xavier 5.19 s, RPi 3B+ 11.57 s",
                  f"{min(times):.2f} s (best of {len(times)})")]
-    latencies = [r["verdict_to_recovered_s"] for r in ctx.runs.done.values() if r.get("verdict_to_recovered_s")
-                 is not None]
-    fig.rows.append(("verdict (or alarm) to the first recovered fix", "~26 s (Xavier, 5 iterations)",
-                     _span(latencies, " s") + f" over {len(latencies)} runs"))
+    runs = ctx.runs.done.values()
+    after_verdict = [r["verdict_to_recovered_s"] for r in runs if r["verdict_s"] is not None and r["attacked"]
+                     and r["verdict_to_recovered_s"] is not None]
+    after_alarm = [r["verdict_to_recovered_s"] for r in runs if r["verdict_s"] is None and r["attacked"]
+                   and r["verdict_to_recovered_s"] is not None]
+    fig.rows += [("a maneuver's verdict to the first recovered fix", "~26 s (Xavier, 5 iterations)",
+                  _span(after_verdict, " s") + f" over {len(after_verdict)} runs"),
+                 ("no maneuver: the alarm to the first recovered fix (every range resolved)", "-",
+                  _span(after_alarm, " s") + f" over {len(after_alarm)} runs")]
     return fig
 
 
@@ -578,4 +583,6 @@ def _lognorm():
 
 FIGURES = {"maneuvers": maneuvers, "tracks": tracks, "amplitude": amplitude, "static": static, "strong": strong,
            "scatter": scatter, "dynamic_push": dynamic_push, "time_push": time_push, "timing": timing,
-           "availability": availability, "integrity": integrity}     # the last two read every run before them
+           "availability": availability, "integrity": integrity}     # the last three read every run before them
+# figures whatever the generator: drawn once, after the others (timing reads every generator's runs)
+ONCE = ("maneuvers", "amplitude", "timing")

@@ -18,12 +18,13 @@ from typing import Callable
 
 from ..errors import BadInput
 from .grid import COLUMNS
-from .paper import FIGURES, PLANS, Context, Figure, Runs
+from .paper import FIGURES, ONCE, PLANS, Context, Figure, Runs
 from .sweep_report import page_head
 from .xgen import GPS_SDR_SIM, OURS, gps_sdr_sim_path, one_line
 
 FIGURES_JSON = "figures.json"
 RUNS_CSV = "runs.csv"
+ANY = "any generator"            # the figures that need no recording: drawn once
 RUN_KEYS = ("generator", "label", *(key for _, key in COLUMNS), "error")
 
 
@@ -55,11 +56,13 @@ def run_suite(name: str, out_dir: str | Path, nav_path: str | None, wanted: str 
     out.mkdir(parents=True, exist_ok=True)
     done: list[dict] = []
     runs_rows: list[dict] = []
-    for generator in chosen:
-        runs = Runs(nav_path, out / "work" / generator)
+    wanted = [k for k in plan.figures or FIGURES]
+    every = Runs(nav_path, out / "work")           # every generator's runs, for the figures drawn once
+    for generator in (*chosen, ANY):
+        runs = every if generator == ANY else Runs(nav_path, out / "work" / generator)
         runs.work.mkdir(parents=True, exist_ok=True)
-        ctx = Context(plan, generator, runs, out)
-        for key in plan.figures or FIGURES:
+        ctx = Context(plan, chosen[0] if generator == ANY else generator, runs, out)
+        for key in (k for k in wanted if (k in ONCE) == (generator == ANY)):
             t0 = time.perf_counter()
             try:
                 fig = FIGURES[key](ctx)
@@ -72,8 +75,10 @@ def run_suite(name: str, out_dir: str | Path, nav_path: str | None, wanted: str 
             (out / FIGURES_JSON).write_text(json.dumps({"suite": name, "figures": done}, indent=1))
             if told:
                 told(generator, fig)
-        runs_rows += [{"generator": generator, **r} for r in runs.done.values()]
-        _write_runs(out / RUNS_CSV, runs_rows)
+        if generator != ANY:
+            every.done |= {(generator, *key): r for key, r in runs.done.items()}
+            runs_rows += [{"generator": generator, **r} for r in runs.done.values()]
+            _write_runs(out / RUNS_CSV, runs_rows)
     return render_suite_report(out / FIGURES_JSON)
 
 
