@@ -21,7 +21,9 @@ def _run(tmp_path, name, brdc_path, *sets):
     cfg = load_scenario(None, COMMON + [f'constellation.rinex="{brdc_path}"', *sets])
     out = tmp_path / f"{name}.bin"
     simulate_to_file(cfg, out)
-    fixes = run_gnss_sdr(out, FS, "ishort", 0.0, tmp_path / f"{name}.gnss-sdr", timeout_s=600)
+    # a long output path: GNSS-SDR cuts one of about 170 characters short and writes its fixes elsewhere
+    fixes = run_gnss_sdr(out, FS, "ishort", 0.0, tmp_path / ("a-long-folder-name-" * 9) / f"{name}.gnss-sdr",
+                         timeout_s=600)
     return cfg, fixes
 
 

@@ -79,7 +79,8 @@ def gnss_sdr_config(data_file: str | os.PathLike, fs_hz: float, item_type: str, 
     `item_type` is GNSS-SDR's name of the sample format ('ishort' = interleaved int16 I/Q, 'ibyte' = int8 I/Q,
     'gr_complex' = complex64). `if_hz` is where L1 sits in the complex band (the signal is multiplied by
     exp(-j 2 pi if_hz t) before acquisition); 0 uses a pass-through filter. NMEA, GPX, KML and GeoJSON go to
-    `out_dir`; RINEX 3 observations and navigation too when `rinex`; XML ephemeris dumps and RTCM are off.
+    `out_dir` (as written: relative to where GNSS-SDR runs); RINEX 3 observations and navigation too when `rinex`;
+    XML ephemeris dumps and RTCM are off.
     """
     if item_type not in ITEM_TYPES:
         raise ValueError(f"item_type must be one of {', '.join(ITEM_TYPES)}, got {item_type!r}")
@@ -102,7 +103,7 @@ def gnss_sdr_config(data_file: str | os.PathLike, fs_hz: float, item_type: str, 
     if not 1000 <= doppler_max_hz <= 50000:
         raise ValueError(f"doppler_max_hz must be 1000..50000, got {doppler_max_hz}")
     data = _conf_value(str(Path(data_file).resolve()), "data file path")
-    out = _conf_value(str(Path(out_dir).resolve()), "output directory")
+    out = _conf_value(str(out_dir), "output directory")
 
     if if_hz == 0.0:
         input_filter = [
@@ -315,7 +316,9 @@ def run_gnss_sdr(data_file: str | os.PathLike, fs_hz: float, item_type: str, if_
         for stale in out_dir.glob(f"{OUTPUT_STEM}*.{ext}"):
             stale.unlink()
     conf_path = out_dir / CONFIG_NAME
-    conf_path.write_text(gnss_sdr_config(data_file, fs_hz, item_type, if_hz, out_dir=out_dir, **config_kwargs),
+    # its outputs relative to the directory it runs in: GNSS-SDR cuts a long output path short (at about 170
+    # characters) and writes its NMEA file into a sibling directory of that shorter name
+    conf_path.write_text(gnss_sdr_config(data_file, fs_hz, item_type, if_hz, out_dir=".", **config_kwargs),
                          encoding="utf-8")
     log_path = out_dir / LOG_NAME
     cmd = [exe, f"--config_file={conf_path}", "--keyboard=false", f"--log_dir={out_dir}",
