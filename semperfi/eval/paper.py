@@ -62,7 +62,7 @@ PLANS = {
                  powers_db=(3.0, 5.0, 10.0, 15.0, 20.0), strong_offsets_m=(500.0, 1000.0, 3000.0, 6200.0),
                  timing_repeat=5),
     "quick": Plan("quick", fs_hz=2.0e6, static_s=30.0, offsets_m=(1000.0, 3000.0), powers_db=(3.0, 15.0),
-                  strong_offsets_m=(3000.0,), maneuvers=12, flying_s=50.0, maneuver_at_s=20.0, takeover_s=60.0,
+                  strong_offsets_m=(3000.0,), maneuvers=12, flying_s=50.0, maneuver_at_s=20.0, takeover_s=50.0,
                   push_s=40.0, push_at_s=18.0, timing_fs_hz=4e6, timing_repeat=1),
     # CI-sized: one short static attack and what needs no recording
     "tiny": Plan("tiny", fs_hz=2.0e6, static_s=20.0, offsets_m=(1000.0,), maneuvers=6, timing_fs_hz=2e6,
