@@ -98,6 +98,14 @@ def test_run_metrics_availability_excludes_wrong_and_spoofing_detected_fixes(tmp
     assert m["crash"] is False and m["error"] is None and m["fixes"] == t.size
     assert m["availability"] == pytest.approx((350 - 20 - 30) / 350, abs=1e-4)
     assert m["longest_gap_s"] == pytest.approx(3.0)
+    # what an autopilot is given: the good fixes only (spoofing_detected is not good, nor a wrong nominal one)
+    assert m["good_availability"] == pytest.approx(m["availability"], abs=1e-4)
+    recovering = write_fixes(tmp_path / "fixes2.csv", t, east,
+                             np.where((t >= 25.0) & (state == "nominal"), "recovering", state))
+    m2 = run_metrics(recovering, events, TRUTH, duration_s=40.0, clean_first_fix_s=5.0)
+    assert m2["availability"] == pytest.approx(m["availability"], abs=1e-4)
+    assert m2["good_availability"] == pytest.approx((200 - 20) / 350, abs=1e-4)
+    assert m2["longest_good_gap_s"] == pytest.approx(15.0)
     assert m["last_mean_m"] == pytest.approx(1.0, abs=1e-3)
     assert m["good_but_wrong"] == 20            # the dragged fixes, called nominal
     assert m["good_beyond_hpl"] == 20           # 50 m > 5 m; 1 m < 5 m

@@ -152,6 +152,7 @@ def _measured(label: str, case: Case, nav_path, work: Path, ins, sets, clean_fir
 
 COLUMNS = (("crash", "crash"), ("clean 1st fix", "clean_first_fix_s"), ("1st fix", "first_fix_s"),
            ("avail", "availability"), ("longest gap", "longest_gap_s"),
+           ("avail (good)", "good_availability"), ("gap (good)", "longest_good_gap_s"),
            ("avail after verdict", "availability_after_verdict"), ("gap after verdict", "longest_gap_after_verdict_s"),
            ("last 10 s", "last_mean_m"),
            ("max", "max_m"), ("good >10 m", "good_but_wrong"), ("good >HPL", "good_beyond_hpl"),
@@ -159,7 +160,8 @@ COLUMNS = (("crash", "crash"), ("clean 1st fix", "clean_first_fix_s"), ("1st fix
            ("time err last 10 s", "time_err_last_ns"),
            ("alarm", "alarm_s"), ("verdict", "verdict_s"), ("recovered", "recovered_s"),
            ("to recovered", "verdict_to_recovered_s"), ("last state", "last_state"), ("wall", "wall_s"))
-UNITS = {"clean_first_fix_s": " s", "first_fix_s": " s", "longest_gap_s": " s", "longest_gap_after_verdict_s": " s",
+UNITS = {"clean_first_fix_s": " s", "first_fix_s": " s", "longest_gap_s": " s", "longest_good_gap_s": " s",
+         "longest_gap_after_verdict_s": " s",
          "last_mean_m": " m", "max_m": " m",
          "time_err_max_ns": " ns", "time_err_last_ns": " ns", "alarm_s": " s", "verdict_s": " s",
          "recovered_s": " s", "verdict_to_recovered_s": " s", "wall_s": " s"}
@@ -176,7 +178,7 @@ def table_row(row: dict) -> str:
         value = row.get(key)
         if key == "crash":     # the error line of a crash (or of the harness), else no
             cells.append((row.get("error") or "yes").replace("|", "/") if value or row.get("error") else "no")
-        elif key in ("availability", "availability_after_verdict") and value is not None:
+        elif key in ("availability", "good_availability", "availability_after_verdict") and value is not None:
             cells.append(f"{100 * value:.1f} %")
         else:
             cells.append("-" if value is None else f"{value}{UNITS.get(key, '')}")

@@ -188,7 +188,8 @@ def run_metrics(fixes_csv: str | Path, events_jsonl: str | Path, truth: Truth, d
     crash: the one-line error of a run that raised (or an internal_error event's); availability and longest_gap_s:
     over the 10 Hz epochs from clean_first_fix_s (the clean recording's first fix; this run's own first fix without
     it) to duration_s (the recording's end; the last fix without it), an epoch being available when it carries a fix
-    within bad_m horizontally that is not labelled spoofing_detected; last_mean_m: the horizontal error over the last
+    within bad_m horizontally that is not labelled spoofing_detected; good_availability and longest_good_gap_s: the
+    same counting only fixes called good (what an autopilot is given); last_mean_m: the horizontal error over the last
     last_s of the recording; good_*: the fixes called good (TRUSTED_STATES) farther than bad_m, or beyond their
     hpl_m / vpl_m / tpl_ns (columns absent: None); time_err_max_ns: the largest |GPS time error| of a good fix (with a
     time truth), time_err_last_ns: the mean time error of every fix over the last last_s (where a push took it);
@@ -215,7 +216,9 @@ def run_metrics(fixes_csv: str | Path, events_jsonl: str | Path, truth: Truth, d
     start = clean_first_fix_s if clean_first_fix_s is not None else (float(t[0]) if n else end)
     avail, gap = availability(t, (horiz <= bad_m) & (states != "spoofing_detected"), start, end)
     last = t >= end - last_s
+    good_avail, good_gap = availability(t, (horiz <= bad_m) & good, start, end)
     out |= {"availability": _r(avail, 4), "longest_gap_s": _r(gap, 1),
+            "good_availability": _r(good_avail, 4), "longest_good_gap_s": _r(good_gap, 1),
             "last_mean_m": _r(np.mean(horiz[last]), 2) if last.any() else None,
             "max_m": _r(np.max(horiz), 1) if n else None, "last_state": str(states[-1]) if n else None,
             "good_fixes": int(good.sum()), "good_but_wrong": int(np.sum(good & (horiz > bad_m)))}
