@@ -17,7 +17,8 @@ def brdc_path() -> Path:
 # order collected) starts them at once and ends on short ones: in alphabetical order the cross-generator files came
 # last, one worker ran them alone for minutes while the other idled.
 LONGEST_FIRST = ("test_xgen.py", "test_gnss_sdr.py", "test_xgen_availability.py", "test_sitl.py", "test_defense.py",
-                 "test_closed_loop.py", "test_install.py", "test_sweep.py", "test_clock.py", "test_receiver.py",
+                 "test_closed_loop.py", "test_install.py", "test_sweep.py", "test_suite.py", "test_clock.py",
+                 "test_receiver.py",
                  "test_sitl_gps.py")
 
 

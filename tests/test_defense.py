@@ -553,7 +553,7 @@ def test_the_defended_chain_does_not_search_again_what_the_full_search_found_abs
     sensitively than the chain's cold search; the PRNs it found nothing of are not searched cold by the chain until
     the next full search is due. The same satellites are tracked either way."""
     path = tmp_path / "sky.bin"
-    simulate_to_file(load_scenario(None, ["signal.fs_hz=2e6", "time.duration_s=8.0", "constellation.max_satellites=8",
+    simulate_to_file(load_scenario(None, ["signal.fs_hz=2e6", "time.duration_s=6.0", "constellation.max_satellites=8",
                                           'signal.format="ishort"']), path)
     made = {}
 
@@ -569,7 +569,7 @@ def test_the_defended_chain_does_not_search_again_what_the_full_search_found_abs
     plain, defended = run("plain", Receiver), run("defended", DefendedReceiver)
     visible = {int(r["prn"]) for r in csv.DictReader(open(path.with_name("sky.truth-signals.csv")))}
     assert set(plain.channels) == set(defended.channels) == visible
-    # the plain chain searches the 24 absent PRNs every second (8 s: 7 searches or more after the first); the
+    # the plain chain searches the 24 absent PRNs every second (6 s: 5 searches or more after the first); the
     # defended one at most twice before the guard's first full search reaches it, and none of them after
-    assert defended.stats.cold_searched <= 2 * 32 < 7 * 24 <= plain.stats.cold_searched, (
+    assert defended.stats.cold_searched <= 2 * 32 < 5 * 24 <= plain.stats.cold_searched, (
         defended.stats.cold_searched, plain.stats.cold_searched)

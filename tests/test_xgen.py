@@ -179,6 +179,7 @@ def test_the_legitimate_symbols_retrieved_from_under_a_far_stronger_attacker_are
 
 
 METRICS = {"cell", "case", "crash", "error", "fixes", "first_fix_s", "clean_first_fix_s", "availability",
+           "good_availability", "longest_good_gap_s",
            "longest_gap_s", "availability_after_verdict", "longest_gap_after_verdict_s", "last_mean_m", "max_m",
            "last_state", "good_fixes", "good_but_wrong", "good_beyond_hpl",
            "good_beyond_vpl", "good_beyond_tpl", "time_err_max_ns", "time_err_last_ns", "alarm_s", "verdict_s",

@@ -113,7 +113,9 @@ class DefendedReceiver:
             self.inner.suspect_prns = {p for p in self.inner.channels if self.guard.suspect(p)}
         if self.inner.rectifier is not None:
             self.inner.rectifier.update(self.guard.canceller)
-        self.inner.absent_prns = self.guard.absent_now()   # one search of the sky, not two
+        self.inner.absent_prns = self.guard.absent_now()   # one search of the sky, not two: and what that search
+        if self.guard.sky_interference is not None:        # found besides GPS is the chain's to tell
+            self.inner.interference.update(*self.guard.sky_interference)
         self.inner.feed(cleaned)
         if self.guard.d["mode"] == "full":
             self._follow_hypotheses()

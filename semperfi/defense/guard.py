@@ -85,6 +85,7 @@ class SpoofGuard:
         self._next_full = 0
         self.absent_prns: frozenset[int] = frozenset()   # what the latest full search found nothing of ...
         self._absent_until = 0                           # ... and until when that stands
+        self.sky_interference = None                     # (what it found besides GPS, when), for the chain to tell
         self.present_prns: set[int] = set()
         self.alarm_t_s: float | None = None
         self.alarmed_prns: set[int] = set()
@@ -212,6 +213,7 @@ class SpoofGuard:
         cafs = self._acquire(x, prns, 0.0, self.cfg["acquisition"]["doppler_max_hz"])
         if full:
             self.absent_prns = frozenset(p for p, c in cafs.items() if c.best is None)
+            self.sky_interference = (next(iter(cafs.values())).interference, t_s)
             self._absent_until = self._seen + int((self.d["full_search_every_s"] + ABSENT_MARGIN_S) * self.fs_hz)
         # a strong attacker's cross-talk puts peaks on absent PRNs: examining them every look would cost the most
         self.present_prns |= {p for p, c in cafs.items() if examinable(c.best, c, cafs, self.detector.cfg, self.fs_hz)}
