@@ -3,10 +3,11 @@
 import numpy as np
 import pytest
 
-from semperfi.defense.detector import TWO_PATH_BLOCK_S, DetectorConfig, hidden_pair, is_cross_talk
+from semperfi.defense.detector import (TWO_PATH_BLOCK_S, DetectorConfig, cross_power, cross_power_reference,
+                                      hidden_pair, is_cross_talk)
 from semperfi.gps.codes import ca_code
 from semperfi.gps.constants import CA_CHIP_RATE_HZ, L1_HZ
-from semperfi.receiver.acquisition import DopplerGrid, acquire
+from semperfi.receiver.acquisition import DopplerGrid, Peak, acquire
 
 FS = 2.6e6
 T = np.arange(int(FS * 0.04)) / FS
@@ -43,3 +44,19 @@ def test_strong_prns_cross_talk_is_no_second_path_and_a_real_one_is(seed):
     assert pair is None or cross_talk, pair
     pair, cross_talk = judged(x + _signal(5, 301.3, doppler, 2.0, 42.0))
     assert pair is not None and not cross_talk and abs(pair.separation_chips - 1.0) < 0.15, pair
+
+
+@pytest.mark.parametrize("block_ms", [1, 2])
+def test_the_cross_power_kernel_is_its_reference(block_ms):
+    """The phasor-turned kernel against the exponentials of the plain numpy sum, over random pairs of signals: the
+    same power to a part in 1e9, including the same-PRN case (a code's own autocorrelation) and 5 kHz apart."""
+    rng = np.random.default_rng(7)
+    n = int(FS * 2e-3)
+    for _ in range(40):
+        a = Peak(int(rng.integers(1, 33)), rng.uniform(0, 1023), rng.uniform(-5000, 5000), 10.0, 45.0)
+        b = Peak(int(rng.integers(1, 33)), rng.uniform(0, 1023), rng.uniform(-5000, 5000), 50.0, 55.0)
+        k = int(FS * block_ms * 1e-3)
+        want = cross_power_reference(a, b, FS, n, k)
+        assert cross_power(a, b, FS, n, k) == pytest.approx(want, rel=1e-9, abs=1e-15)
+    same = Peak(a.prn, a.code_phase_chips, a.doppler_hz, 50.0, 55.0)
+    assert cross_power(a, same, FS, n, n) == pytest.approx(1.0, abs=1e-12)   # the code against itself: all of it

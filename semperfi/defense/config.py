@@ -10,8 +10,11 @@ from ..config import key
 @dataclass(frozen=True)
 class Defense:
     mode: str = key("full", choices=("off", "detect", "full"))
-    examine_every_s: float = key(1.0, 0.01, 3600.0, unit="s",
-                                 doc="re-acquisition for auxiliary peaks while tracking, as the paper does")
+    # re-acquisition for auxiliary peaks while tracking, as the paper does: this often once an attack is seen or a
+    # pair waits for its confirmation; quiet_examine_every_s while nothing at all has been seen (at a third of the
+    # cost: its looks are half as long), so that the defence costs little on a clean sky
+    examine_every_s: float = key(0.5, 0.01, 3600.0, unit="s")
+    quiet_examine_every_s: float = key(2.0, 0.01, 3600.0, unit="s")
     # output held back at the start while the first looks (every 0.1 s) decide, so an attack present from the first
     # sample is cancelled from the first sample
     startup_s: float = key(0.3, 0.0, 60.0, unit="s")

@@ -7,9 +7,11 @@ CAF maximum, so the main peak is also tested for a second path underneath it (tw
 acquisition to the next, so a seamless takeover raises the alarm when the separation crosses the threshold.
 """
 
+import functools
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from numba import njit
 
 from ..gps.constants import CA_CHIP_RATE_HZ, L1_HZ
 from ..gps.codes import ca_code, chips_apart
@@ -116,17 +118,61 @@ def is_cross_talk(peak: Peak, caf: Caf, cafs: dict[int, Caf], cfg: DetectorConfi
         return False
     n = int(round(fs_hz * caf.coherent_s))
     k = n if block_s is None else max(1, min(n, int(round(fs_hz * block_s))))
-    n -= n % k
-    t = np.arange(n) / fs_hz
-    mine = np.conj(_signal(peak.prn, peak.code_phase_chips, peak.doppler_hz, t))
     leaked = 0.0    # the stronger signals' summed cross-talk (their phases are unrelated: powers add)
     for prn, other in cafs.items():
         b = other.best
         if prn == caf.prn or b is None or b.metric <= peak.metric:
             continue
-        per_block = np.sum((mine * _signal(prn, b.code_phase_chips, b.doppler_hz, t)).reshape(-1, k), axis=1) / k
-        leaked += b.metric * float(np.mean(np.abs(per_block) ** 2))
+        leaked += b.metric * cross_power(peak, b, fs_hz, n, k)
     return leaked >= peak.metric * CROSS_TALK_SHARE
+
+
+def cross_power(mine: Peak, other: Peak, fs_hz: float, n: int, k: int) -> float:
+    """The mean over blocks of k samples (n // k of them) of |<mine's signal, other's signal>|^2 / k^2: how much of
+    the other signal's power a correlation with mine's replica sees."""
+    return _cross_power_kernel(_code(mine.prn), mine.code_phase_chips, _chips_per_sample(mine, fs_hz),
+                               _code(other.prn), other.code_phase_chips, _chips_per_sample(other, fs_hz),
+                               2 * np.pi * (other.doppler_hz - mine.doppler_hz) / fs_hz, n - n % k, k)
+
+
+@functools.lru_cache(maxsize=64)
+def _code(prn: int) -> np.ndarray:
+    return ca_code(prn).astype(np.float64)
+
+
+def cross_power_reference(mine: Peak, other: Peak, fs_hz: float, n: int, k: int) -> float:
+    """The same with plain numpy (slow; for tests)."""
+    n -= n % k
+    t = np.arange(n) / fs_hz
+    products = np.conj(_signal(mine, t)) * _signal(other, t)
+    return float(np.mean(np.abs(np.sum(products.reshape(-1, k), axis=1) / k) ** 2))
+
+
+def _chips_per_sample(p: Peak, fs_hz: float) -> float:
+    return CA_CHIP_RATE_HZ * (1 + p.doppler_hz / L1_HZ) / fs_hz
+
+
+def _signal(p: Peak, t_s: np.ndarray) -> np.ndarray:
+    chips = np.floor(p.code_phase_chips + t_s * CA_CHIP_RATE_HZ * (1 + p.doppler_hz / L1_HZ)).astype(np.int64) % 1023
+    return ca_code(p.prn)[chips] * np.exp(2j * np.pi * p.doppler_hz * t_s)
+
+
+@njit(cache=True, nogil=True)
+def _cross_power_kernel(code_a, chip0_a, rate_a, code_b, chip0_b, rate_b, dphase, n, k):
+    """cross_power's sums: a block's magnitude does not depend on the carrier's phase at its start, so the difference
+    carrier is a phasor turned sample by sample from 1 in each block (no exponential per sample)."""
+    total = 0.0
+    dc, ds = np.cos(dphase), np.sin(dphase)
+    for b in range(n // k):
+        re, im, c, s = 0.0, 0.0, 1.0, 0.0
+        for t in range(b * k, (b + 1) * k):
+            v = (code_a[np.int64(np.floor(chip0_a + t * rate_a)) % 1023]
+                 * code_b[np.int64(np.floor(chip0_b + t * rate_b)) % 1023])
+            re += v * c
+            im += v * s
+            c, s = c * dc - s * ds, c * ds + s * dc
+        total += (re * re + im * im) / (k * k)
+    return total / (n // k)
 
 
 def in_units_of(caf: Caf, cafs: dict[int, Caf]) -> dict[int, Caf]:
@@ -136,11 +182,6 @@ def in_units_of(caf: Caf, cafs: dict[int, Caf]) -> dict[int, Caf]:
         k = caf.coherent_s / other.coherent_s
         return replace(other, peaks=tuple(replace(p, metric=p.metric * k) for p in other.peaks))
     return {prn: scaled(other) for prn, other in cafs.items()}
-
-
-def _signal(prn: int, code_phase_chips: float, doppler_hz: float, t_s: np.ndarray) -> np.ndarray:
-    chips = np.floor(code_phase_chips + t_s * CA_CHIP_RATE_HZ * (1 + doppler_hz / L1_HZ)).astype(np.int64) % 1023
-    return ca_code(prn)[chips] * np.exp(2j * np.pi * doppler_hz * t_s)
 
 
 TWO_PATH_MARGIN_CHIPS = 0.1
@@ -248,6 +289,10 @@ class SpoofingDetector:
     def sensitive(self) -> bool:
         """The attack is known to be present: every PRN is examined at the highest sensitivity."""
         return self.first_alarm_s is not None
+
+    def pending(self) -> bool:
+        """Whether a pair has been seen that is still to be confirmed."""
+        return any(self.streak.values())
 
     # What the guard tells the detector: its sets change only through these.
 

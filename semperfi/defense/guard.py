@@ -27,6 +27,9 @@ WINDOW_MS = 40     # samples kept for examinations: acquisition looks at all 40 
 # 1.5-4 detection thresholds in 10 ms (under the examinable 3 on most PRNs: no alarm at all in a GPS-SDR-SIM
 # recording) and at 3-7 in 40 ms
 EXAMINE_NONCOHERENT = 20
+# While nothing at all has been seen of an attack, half of that (2 ms x 10): enough for any spoofer that matters
+# (a 38 dB-Hz peak stands at ~5 detection thresholds), and the first pair seen is looked at again at full sensitivity
+QUIET_NONCOHERENT = 10
 # a peak this far from a cancelled spoofer's code phase, or further, is not its residual (the acquisition's code phase
 # is good to a few hundredths of a chip on a dominant peak)
 TWIN_MIN_CHIPS = 0.15
@@ -144,7 +147,7 @@ class SpoofGuard:
         starting = self.d["mode"] != "off" and self._seen < self._startup_samples
         if self.d["mode"] != "off" and self._seen >= self._next_exam and self._raw.size >= self.window:
             self._examine()
-            every = 0.1 if starting else self.d["examine_every_s"] / (2.0 if self.detector.sensitive else 1.0)
+            every = 0.1 if starting else self.d["quiet_examine_every_s" if self._quiet() else "examine_every_s"]
             self._next_exam = self._seen + int(every * self.fs_hz)
         if starting:                      # hold the first samples until the first looks have decided
             self._held.append(chunk)
@@ -164,6 +167,11 @@ class SpoofGuard:
         self._verify()
         return cleaned
 
+    def _quiet(self) -> bool:
+        """Nothing at all seen of an attack (the most common case there is): no alarm, no pair waiting for its
+        confirmation, past the start-up looks."""
+        return not (self.detector.sensitive or self.detector.pending() or self._seen < self._startup_samples)
+
     def flush(self) -> np.ndarray:
         """The samples still held back, at the end of the stream."""
         held = np.concatenate(self._held) if self._held else np.empty(0, dtype=np.complex64)
@@ -172,12 +180,13 @@ class SpoofGuard:
         self._cleaned += cleaned.size
         return cleaned
 
-    def _acquire(self, window: np.ndarray, prns, center_hz: float, span_hz: float):
-        """Every examination's search: the window's 2 ms x EXAMINE_NONCOHERENT, 333 Hz bins."""
+    def _acquire(self, window: np.ndarray, prns, center_hz: float, span_hz: float,
+                 noncoherent: int = EXAMINE_NONCOHERENT):
+        """Every examination's search: the window's 2 ms x noncoherent, 333 Hz bins."""
         a = self.cfg["acquisition"]
-        n = int(round(self.fs_hz * 1e-3)) * 2 * EXAMINE_NONCOHERENT
+        n = int(round(self.fs_hz * 1e-3)) * 2 * noncoherent
         return acquire(window[:n], self.fs_hz, prns, DopplerGrid(center_hz, span_hz, 333.0),
-                       self.if_hz, 2, EXAMINE_NONCOHERENT, a["pfa"], max(EXAMINE_MAX_PEAKS, a["max_peaks"]),
+                       self.if_hz, 2, noncoherent, a["pfa"], max(EXAMINE_MAX_PEAKS, a["max_peaks"]),
                        excise=True)   # a tone is no satellite, and no spoofer either
 
     def absent_now(self) -> frozenset[int]:
@@ -210,7 +219,8 @@ class SpoofGuard:
         prns = list(range(1, 33)) if full else sorted(self.present_prns | self.extra_prns)
         if full:
             self._next_full = self._seen + int(self.d["full_search_every_s"] * self.fs_hz)
-        cafs = self._acquire(x, prns, 0.0, self.cfg["acquisition"]["doppler_max_hz"])
+        cafs = self._acquire(x, prns, 0.0, self.cfg["acquisition"]["doppler_max_hz"],
+                             QUIET_NONCOHERENT if self._quiet() else EXAMINE_NONCOHERENT)
         if full:
             self.absent_prns = frozenset(p for p, c in cafs.items() if c.best is None)
             self.sky_interference = (next(iter(cafs.values())).interference, t_s)

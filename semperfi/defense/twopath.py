@@ -44,35 +44,47 @@ class TwoPathFit:
 PAD_CHIPS = 8
 
 
-@njit(cache=True, nogil=True)
-def _profile_kernel(wiped, chip_pos, fracs, frac_of, shift_of, code_pad, n_blocks, k):
-    """y[i, b] = sum over block b of wiped * code(chip_pos + fracs[frac_of[i]] + shift_of[i]); and the first
-    block's replicas r[i, t], whose Gram matrix r r^T the caller forms (BLAS does a matrix product far faster).
+@njit(cache=True, nogil=True, fastmath=True)
+def _profile_kernel(samples, block_carrier, carrier, code_phase_chips, chips_per_sample, fracs, frac_of, shift_of,
+                    code_pad, n_blocks, k):
+    """y[i, b] = sum over block b of the wiped samples * code(position + fracs[frac_of[i]] + shift_of[i]); and the
+    first block's replicas r[i, t], whose Gram matrix r r^T the caller forms (BLAS does a matrix product far faster).
 
-    Offsets a whole number of chips apart cut the samples into the same runs of one chip: for each fractional
-    offset the samples are summed per chip once (bins[m]), and each offset's correlation is the code, shifted,
-    against those sums -- a chip's worth of work per chip and offset instead of a sample's per sample."""
+    Each block is wiped off (its carrier: one block's exponentials turned by the block's own) and its code
+    positions found here, in one pass. Offsets a whole number of chips apart cut the samples into the same runs of
+    one chip: for each fractional offset the samples are summed per chip once (bins), and each offset's correlation
+    is the code, shifted, against those sums -- a chip's worth of work per chip and offset instead of a sample's per
+    sample."""
     n_off = frac_of.size
     n_chips = CA_CODE_LENGTH_CHIPS + 1
     y = np.zeros((n_off, n_blocks), dtype=np.complex128)
-    bins = np.empty(n_chips, dtype=np.complex128)
+    w_re, w_im, pos = np.empty(k), np.empty(k), np.empty(k)
+    b_re, b_im = np.empty(n_chips), np.empty(n_chips)
+    first = np.empty((n_off, k), dtype=np.float32)   # +/-1: its products sum exactly in single precision
     for b in range(n_blocks):
+        for t in range(k):
+            w = samples[b * k + t] * carrier[t] * block_carrier[b]
+            w_re[t], w_im[t] = w.real, w.imag
+            pos[t] = (code_phase_chips + (b * k + t) * chips_per_sample) % CA_CODE_LENGTH_CHIPS
         for f in range(fracs.size):
-            bins[:] = 0.0
-            for t in range(b * k, (b + 1) * k):
-                bins[np.int64(chip_pos[t] + fracs[f])] += wiped[t]   # >= 0: truncation is floor
+            b_re[:] = 0.0
+            b_im[:] = 0.0
+            for t in range(k):
+                m = np.int64(pos[t] + fracs[f])   # >= 0: truncation is floor
+                b_re[m] += w_re[t]
+                b_im[m] += w_im[t]
             for i in range(n_off):
                 if frac_of[i] != f:
                     continue
                 base = shift_of[i] + PAD_CHIPS
-                acc = 0j
+                acc_re, acc_im = 0.0, 0.0
                 for m in range(n_chips):
-                    acc += code_pad[m + base] * bins[m]
-                y[i, b] = acc
-    first = np.empty((n_off, k), dtype=np.float32)   # +/-1: its products sum exactly in single precision
-    for i in range(n_off):
-        for t in range(k):
-            first[i, t] = code_pad[np.int64(chip_pos[t] + fracs[frac_of[i]]) + shift_of[i] + PAD_CHIPS]
+                    acc_re += code_pad[m + base] * b_re[m]
+                    acc_im += code_pad[m + base] * b_im[m]
+                y[i, b] = acc_re + 1j * acc_im
+                if b == 0:
+                    for t in range(k):
+                        first[i, t] = code_pad[np.int64(pos[t] + fracs[f]) + base]
     return y, first
 
 
@@ -85,16 +97,24 @@ def _split_offsets(offsets_chips):
     return fracs, frac_of.astype(np.int64), shift.astype(np.int64)
 
 
-def _wipe_and_positions(samples, fs_hz, code_phase_chips, doppler_hz, if_hz, n_blocks):
+def _chips_per_sample(fs_hz, doppler_hz):
+    return CA_CHIP_RATE_HZ * (1.0 + doppler_hz / L1_HZ) / fs_hz
+
+
+def _carrier(fs_hz, doppler_hz, if_hz, n_blocks):
+    """The carrier of one block, and each block's start phase: k + n_blocks exponentials instead of k * n_blocks."""
     k = int(round(fs_hz * 1e-3))
+    cycles = (doppler_hz + if_hz) / fs_hz
+    return np.exp(-2j * np.pi * cycles * (k * np.arange(n_blocks))), np.exp(-2j * np.pi * cycles * np.arange(k))
+
+
+def _wipe_and_positions(samples, fs_hz, code_phase_chips, doppler_hz, if_hz, n_blocks):
+    block_carrier, carrier = _carrier(fs_hz, doppler_hz, if_hz, n_blocks)
+    k = carrier.size
     n = k * n_blocks
     t = np.arange(n)
-    step = CA_CHIP_RATE_HZ * (1.0 + doppler_hz / L1_HZ) / fs_hz
-    cycles = (doppler_hz + if_hz) / fs_hz
-    # the carrier of one block, turned by each block's start phase: k + n_blocks exponentials instead of n
-    carrier = np.exp(-2j * np.pi * cycles * (k * np.arange(n_blocks)))[:, None] * np.exp(-2j * np.pi * cycles * t[:k])
-    wiped = (samples[:n].reshape(n_blocks, k) * carrier).ravel()
-    return wiped, (code_phase_chips + t * step) % CA_CODE_LENGTH_CHIPS, k
+    wiped = (samples[:n].reshape(n_blocks, k) * block_carrier[:, None] * carrier).ravel()
+    return wiped, (code_phase_chips + t * _chips_per_sample(fs_hz, doppler_hz)) % CA_CODE_LENGTH_CHIPS, k
 
 
 def delay_profile(samples, fs_hz, prn, code_phase_chips, doppler_hz, if_hz, offsets_chips, n_blocks):
@@ -102,10 +122,13 @@ def delay_profile(samples, fs_hz, prn, code_phase_chips, doppler_hz, if_hz, offs
     code's Gram matrix m[i, j] over one block (samples per block K = one code period)."""
     if np.max(np.abs(offsets_chips)) >= PAD_CHIPS - 1:
         raise ValueError(f"delay offsets beyond +/-{PAD_CHIPS - 1} chips")
-    wiped, chip_pos, k = _wipe_and_positions(samples, fs_hz, code_phase_chips, doppler_hz, if_hz, n_blocks)
+    k = int(round(fs_hz * 1e-3))
+    block_carrier, carrier = _carrier(fs_hz, doppler_hz, if_hz, n_blocks)
     code = ca_code(prn).astype(np.float64)
     code_pad = np.concatenate([code[-PAD_CHIPS:], code, code[:PAD_CHIPS]])
-    y, first = _profile_kernel(wiped, chip_pos, *_split_offsets(offsets_chips), code_pad, n_blocks, k)
+    y, first = _profile_kernel(np.ascontiguousarray(samples[:k * n_blocks]), block_carrier, carrier,
+                               float(code_phase_chips), _chips_per_sample(fs_hz, doppler_hz),
+                               *_split_offsets(offsets_chips), code_pad, n_blocks, k)
     return y, (first @ first.T).astype(np.float64), k
 
 
