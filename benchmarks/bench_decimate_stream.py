@@ -34,7 +34,7 @@ def write_file(path: Path, gigabytes: float, fs_hz: float) -> int:
 
 
 def child(path: str, fs_hz: float, out_fs_hz: float) -> None:
-    from semperfi.iq import IqReader
+    from semperfi.iq.reader import IqReader
     from semperfi.iq.decimate import StreamDecimator, decimation_factor
 
     reader = IqReader(path, "ishort", fs_hz, chunk_samples=1 << 20)

@@ -6,8 +6,7 @@ import warnings
 import click
 
 from . import __version__
-from .receiver.config import DEFAULTS as RECEIVER_DEFAULTS
-from .receiver.fix_stream import RATE_HZ
+from .receiver import DEFAULTS as RECEIVER_DEFAULTS, RATE_HZ
 from .errors import (EXIT_BAD_INPUT, EXIT_INPUT_LOST, EXIT_INPUT_SHORT, EXIT_INTERNAL, EXIT_INTERRUPTED,
                      EXIT_NO_SIGNAL)
 
@@ -116,8 +115,8 @@ def main() -> None:
 @click.option("--set", "sets", multiple=True, metavar="SECTION.KEY=VALUE", help="override a scenario key")
 def sim(scenario, out_path, fmt, fs_hz, if_hz, duration_s, sets) -> None:
     """Simulate GPS L1 C/A signals (and an attacker) into OUT, with SigMF metadata and a truth log."""
-    from .sim.run import simulate_to_file
-    from .sim.scenario import load_scenario
+    from .sim import simulate_to_file
+    from .sim import load_scenario
 
     sets = list(sets)
     for key, value in (("signal.format", fmt and f'"{fmt}"'), ("signal.fs_hz", fs_hz), ("signal.if_hz", if_hz),
@@ -187,8 +186,8 @@ def _parse_prns(text: str) -> list[int]:
 def acquire(file, fs_hz, fmt, iq_swap, if_hz, prn_text, start_s, coherent_ms, noncoherent, doppler_max_hz,
             doppler_step_hz, pfa, plot_path) -> None:
     """Search FILE for every PRN: one line per PRN with code phase, Doppler, C/N0, peak ratio and peak count."""
-    from .iq.source import open_source
-    from .receiver.acquisition import DopplerGrid, acquire as run_acquisition
+    from .iq import open_source
+    from .receiver import DopplerGrid, acquire as run_acquisition
 
     prns = _parse_prns(prn_text)
     if plot_path:
@@ -220,7 +219,7 @@ def acquire(file, fs_hz, fmt, iq_swap, if_hz, prn_text, start_s, coherent_ms, no
         click.echo(f"{prn:>3}  {b.code_phase_chips:>7.3f} ch  {b.doppler_hz:>6.0f} Hz  {b.cn0_dbhz:>6.1f}  "
                    f"{caf.peak_ratio:>6.1f}  {caf.second_peak_ratio:>5.2f}  {len(caf.peaks)}")
     if plot_path and found:
-        from .receiver.plots import plot_cafs
+        from .receiver import plot_cafs
         plot_cafs([c for c in cafs.values() if c.best], plot_path)
     if not found and interference.present:
         _fail(f"no satellite acquired in {file} under its {interference.describe()}", EXIT_NO_SIGNAL)
@@ -264,10 +263,10 @@ def run(file, fs_hz, fmt, iq_swap, if_hz, nav_path, out_dir, config_path, defens
     PVT; fixes.csv, NMEA, GPX, GeoJSON, RINEX observations, events.jsonl in --out."""
     import functools
 
-    from .defense.config import load_config
-    from .defense.defended import DefendedReceiver
-    from .defense.imu_track import read_imu_csv
-    from .receiver.run import run_file
+    from .defense import load_config
+    from .defense import DefendedReceiver
+    from .defense import read_imu_csv
+    from .receiver import run_file
 
     sets = (list(sets) + [f'defense.mode="{defense}"'] * bool(defense)
             + [f'defense.adversarial="{adversarial}"'] * bool(adversarial))
@@ -299,9 +298,9 @@ def run(file, fs_hz, fmt, iq_swap, if_hz, nav_path, out_dir, config_path, defens
 def _fix_streams(mavlink_gps_url, nmea_out_url, rate_hz: float, out_dir: str) -> list:
     """The fix streams asked for: (FixStream, its sink), each opened now so a wrong address fails before the run.
     Every GPS_INPUT sent is also logged in out_dir/gps_input.csv."""
-    from .receiver.fix_stream import FixStream
-    from .receiver.gps_input import MavlinkGpsOut
-    from .receiver.nmea_out import NmeaOut
+    from .receiver import FixStream
+    from .receiver import MavlinkGpsOut
+    from .receiver import NmeaOut
     from pathlib import Path
     sinks = []
     if mavlink_gps_url:
@@ -325,8 +324,8 @@ def clean(file, out_path, fs_hz, fmt, iq_swap, if_hz, adversarial, config_path, 
     """Plug-in filter: write FILE (or - for standard input, rtl_tcp://HOST:PORT) with the spoofer's signals cancelled
     to OUT (same format and rate; complex integers after --fs-out or from packed input), for any receiver; events go
     to OUT's stem + .events.jsonl."""
-    from .defense.clean import clean_file
-    from .defense.config import load_config
+    from .defense import clean_file
+    from .defense import load_config
 
     sets = ['defense.mode="full"'] + list(sets) + [f'defense.adversarial="{adversarial}"'] * bool(adversarial)
     try:
@@ -397,7 +396,7 @@ def _flight_link(addr, key_path):
     """The receiver's end of the link to the flight side, or None."""
     if not addr:
         return None
-    from .flight.link import LinkPeer
+    from .flight import LinkPeer
     host, _, port = addr.rpartition(":")
     if not host or not port.isdigit() or not 0 < int(port) < 65536:
         raise ValueError(f"--link wants HOST:PORT, got {addr!r}")
@@ -408,7 +407,7 @@ def _sample_format(fmt, iq_swap: bool):
     """--format, with I and Q exchanged when --iq-swap says so (raises ValueError on a bad name)."""
     if not iq_swap:
         return fmt
-    from .iq.formats import with_iq_swap
+    from .iq import with_iq_swap
     if fmt is None:
         raise ValueError("--iq-swap needs --format (the swap is part of how the samples are laid out)")
     return with_iq_swap(fmt)
@@ -447,7 +446,7 @@ def vehicle(port, seed, altitude_m, heading_deg, time_scale, on_ground) -> None:
     import math
     import threading
 
-    from .sim.mavlink_vehicle import MavlinkVehicle
+    from .sim import MavlinkVehicle
 
     try:
         v = MavlinkVehicle(port, seed=seed, altitude_m=altitude_m, heading_rad=math.radians(heading_deg),
@@ -474,9 +473,9 @@ def fly(url, out_path, timeout_s) -> None:
     to --out. The vehicle must be armed and in the air; it is given back to its mode afterwards."""
     import math
 
-    from .flight.deadreckoning import ins_error_bound_m, write_track_csv
-    from .flight.maneuver import ManeuverLimits, draw
-    from .flight.mavlink_pilot import Pilot, check_vehicle_url
+    from .flight import ins_error_bound_m, write_track_csv
+    from .flight import ManeuverLimits, draw
+    from .flight import Pilot, check_vehicle_url
 
     try:
         check_vehicle_url(url)
@@ -519,8 +518,8 @@ def companion(port, link_key_path, url, maneuvers, test_seed) -> None:
     import json
     import random
 
-    from .flight.companion import serve
-    from .flight.mavlink_pilot import check_vehicle_url
+    from .flight import serve
+    from .flight import check_vehicle_url
 
     def report(event: dict) -> None:
         click.echo(json.dumps(event, separators=(",", ":")))
@@ -544,8 +543,8 @@ def companion(port, link_key_path, url, maneuvers, test_seed) -> None:
 @click.option("--set", "sets", multiple=True, metavar="SECTION.KEY=VALUE", help="override a scenario key")
 def world(scenario, mavlink_port, truth_path, altitude_m, seed, tee_path, sets) -> None:
     """The closed loop's world: the vehicle behind MAVLink, and its GPS signals (and the attacker's) as IQ on stdout."""
-    from .sim.scenario import load_scenario
-    from .sim.world import run_world
+    from .sim import load_scenario
+    from .sim import run_world
 
     try:
         cfg = load_scenario(scenario, list(sets))
@@ -571,14 +570,14 @@ def demo(out_dir, duration_s, sets, autopilot_path, speedup, instance) -> None:
     With --autopilot: the same attack on ArduCopter SITL in flight, SemperFi as its GPS."""
     try:
         if autopilot_path:
-            from .eval.autopilot_loop import run_autopilot_loop, report
+            from .eval import run_autopilot_loop, report
             result = run_autopilot_loop(out_dir, autopilot_path, speedup, instance, list(sets), log=click.echo)
             for line in report(result):
                 click.echo(line)
             if result.errors:
                 _fail(f"the loop did not finish: {result.errors[0]}", EXIT_INTERNAL)
             return
-        from .eval.demo import run_demo
+        from .eval import run_demo
         for line in run_demo(out_dir, duration_s, list(sets), progress=sys.stderr.isatty()):
             click.echo(line)
     except (ValueError, OSError) as exc:
@@ -622,7 +621,7 @@ def evaluate(suite, generator, spec_path, nav_path, out_dir, ray_address, pool, 
 
 
 def _evaluate_suite(suite: str, generator: str, nav_path: str | None, out_dir: str) -> None:
-    from .eval.suite import run_suite
+    from .eval import run_suite
 
     def told(gen, fig) -> None:
         click.echo(f"[{gen}] {fig.title}: " + (f"FAILED {fig.error}" if fig.error else
@@ -636,8 +635,8 @@ def _evaluate_sweep(spec_path, nav_path, out_dir, ray_address, pool, workers, on
     import json
     import time
 
-    from .eval.sweep import load_spec, ray_available, read_results, run_only, run_sweep
-    from .eval.sweep_report import render_report
+    from .eval import load_spec, ray_available, read_results, run_only, run_sweep
+    from .eval import render_report
     spec = load_spec(spec_path)
     if only_id:
         click.echo(json.dumps(run_only(spec, nav_path, out_dir, only_id)))
@@ -673,9 +672,9 @@ def report(results, out_dir) -> None:
     its figures.json (beside it)."""
     from pathlib import Path
 
-    from .eval.suite import render_suite_report
-    from .eval.sweep import read_results
-    from .eval.sweep_report import render_report
+    from .eval import render_suite_report
+    from .eval import read_results
+    from .eval import render_report
     try:
         if Path(results).suffix == ".json":
             click.echo(render_suite_report(results))

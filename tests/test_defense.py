@@ -218,6 +218,53 @@ def test_seamless_takeover_alarms_when_the_peaks_part_by_500_ns(tmp_path):
         assert separation_ns(alarm.prn, t - 1.05) < 500.0 or sep < 800.0, f"PRN {alarm.prn}: alarm late ({sep:.0f} ns)"
 
 
+def test_the_guard_looks_seldom_on_a_quiet_sky_and_still_alarms_a_takeover_a_look_after_500_ns(tmp_path):
+    """The guard itself, as `run` drives it: while nothing has been seen it looks every quiet_examine_every_s with
+    2 ms x QUIET_NONCOHERENT (the cheap looks of a clean sky), and a seamless takeover is alarmed at most one quiet
+    look and one confirming look (examine_every_s) after its peaks part by the alarm's separation plus the two-path
+    margin: before then the separation grows at the push's 200 ns/s."""
+    from semperfi.defense.detector import TWO_PATH_MARGIN_CHIPS, DetectorConfig
+    from semperfi.defense.guard import QUIET_NONCOHERENT, SpoofGuard
+    rows = simulate(tmp_path / "t.bin", "constellation.max_satellites=6", "attacker.enabled=true",
+                    'attacker.mode="takeover"', "attacker.push_speed_m_s=60.0", "attacker.push_hold_s=1.5",
+                    "attacker.power_ramp_s=1.0", duration=10.0)
+    cfg = load_config(None, ['defense.mode="detect"'])
+    events, looks = [], []
+
+    class Events:
+        def emit(self, kind, t_s, **fields):
+            events.append({"event": kind, "t_s": t_s, **fields})
+    guard = SpoofGuard(cfg, FS, events=Events())
+    acquire_in_guard = guard._acquire
+
+    def spied(window, prns, center_hz, span_hz, noncoherent):
+        looks.append((guard._seen / FS, guard._quiet(), noncoherent))
+        return acquire_in_guard(window, prns, center_hz, span_hz, noncoherent)
+    guard._acquire = spied
+    reader, chunk = open_iq(tmp_path / "t.bin"), int(0.1 * FS)
+    for i in range(0, int(10.0 * FS), chunk):
+        guard.push(reader.read(i, chunk))
+    alarms = [e for e in events if e["event"] == "spoofing_alarm"]
+    assert alarms, "a takeover dragging at 60 m/s parts the peaks within 10 s"
+    t_alarm = alarms[0]["t_s"]
+    quiet = [(t, nc) for t, q, nc in looks if q]
+    assert len(quiet) >= 2 and all(nc == QUIET_NONCOHERENT for _, nc in quiet), looks
+    assert all(b - a == pytest.approx(cfg["defense"]["quiet_examine_every_s"], abs=0.11)
+               for (a, _), (b, _) in zip(quiet, quiet[1:])), quiet
+
+    def separation_ns(t):
+        def at(src):
+            return min((r for r in rows if r["prn"] == alarms[0]["prn"] and r["source"] == src),
+                       key=lambda r: abs(r["t_rx_s"] - t))
+        return abs(at("spoof")["pseudorange_m"] - at("legit")["pseudorange_m"]) / 0.299792458
+    chip_ns = 1e9 / 1.023e6
+    alarm_ns = (DetectorConfig().separation_chips + TWO_PATH_MARGIN_CHIPS) * chip_ns
+    assert separation_ns(t_alarm) > 450.0, f"alarm at {separation_ns(t_alarm):.0f} ns"
+    late_s = cfg["defense"]["quiet_examine_every_s"] + cfg["defense"]["examine_every_s"] + 0.1   # + one chunk
+    # the fit's delay grid (0.05 chip) and the look's window (40 ms) on top of the separation it alarms at
+    assert separation_ns(t_alarm - late_s) < alarm_ns + 0.05 * chip_ns + 0.04 * 200.0, separation_ns(t_alarm - late_s)
+
+
 @pytest.mark.parametrize("advantage_db", [0.0, 3.0, 6.0, 10.0])
 def test_amplitude_estimate_from_the_caf_peak(advantage_db):
     """The paper's eq. 10 on peaks that stand apart (an unsynchronized spoofer, 5 us off): a legitimate twin within

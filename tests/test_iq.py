@@ -12,8 +12,9 @@ import sigmf
 
 from semperfi.errors import BadInput
 from semperfi.gps.constants import L1_HZ
-from semperfi.iq import (FORMAT_NAMES, GR_COMPLEX, IBYTE, ISHORT, IqReader, IqWriter, format_by_name, open_iq,
-                         read_sigmf_meta)
+from semperfi.iq import GR_COMPLEX, IBYTE, ISHORT, IqWriter, format_by_name, open_iq, read_sigmf_meta
+from semperfi.iq.formats import FORMAT_NAMES
+from semperfi.iq.reader import IqReader
 from semperfi.iq.sigmf import MAX_META_BYTES
 
 FS_HZ = 4.092e6
@@ -377,7 +378,8 @@ def test_read_sigmf_meta_direct(tmp_path):
 
 # --- real-valued IF samples, SigMF datatypes, spectral inversion ---------------------------------------------------
 
-from semperfi.iq import FORMATS, decode_items, encode_samples, with_iq_swap  # noqa: E402
+from semperfi.iq import encode_samples, with_iq_swap  # noqa: E402
+from semperfi.iq.formats import FORMATS, decode_items  # noqa: E402
 
 
 @pytest.mark.parametrize("fmt", [f for f in FORMATS if not f.bits], ids=lambda f: f.name)

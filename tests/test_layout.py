@@ -8,7 +8,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 PACKAGE = REPO / "semperfi"
-LEAVES = {"address", "config", "errors", "progress"}     # top-level modules with no room imports of their own
+LEAVES = {"address", "config", "errors", "face", "progress"}     # top-level modules with no room imports of their own
 MAY_IMPORT = {
     "gps": set(),
     "iq": {"gps"},
@@ -43,6 +43,44 @@ def test_each_room_imports_only_what_it_may():
             if extra:
                 broken.append(f"{room}/{path.name} imports {sorted(extra)}")
     assert not broken, "; ".join(broken)
+
+
+def _cross_room_imports():
+    """(importing file, room, module within the room or None for its face, names) for every import of a room's names
+    from outside it, in the package."""
+    rooms = {p.name for p in PACKAGE.iterdir() if (p / "__init__.py").is_file()}
+    for path in sorted(PACKAGE.rglob("*.py")):
+        rel = path.relative_to(PACKAGE)
+        here = rel.parts[0] if len(rel.parts) > 1 else None
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Import):
+                parts = [a.name.split(".") for a in node.names if a.name.startswith("semperfi.")]
+                yield from ((rel, p[1], ".".join(p[2:]) or None, ()) for p in parts if p[1] != here)
+            if not isinstance(node, ast.ImportFrom):
+                continue
+            if node.level:
+                base = ["semperfi", *rel.parts[:-1]][:len(rel.parts) - node.level + 1]
+                parts = base + (node.module.split(".") if node.module else [])
+            else:
+                parts = (node.module or "").split(".")
+            if len(parts) >= 2 and parts[0] == "semperfi" and parts[1] in rooms and parts[1] != here:
+                yield rel, parts[1], ".".join(parts[2:]) or None, tuple(a.name for a in node.names)
+
+
+def test_the_rooms_meet_only_through_their_faces():
+    """A room uses another room's names through that room's __init__ (semperfi.face: loaded when first used), and a
+    face holds exactly the names other rooms use: nothing reaches past it, nothing on it is unused."""
+    import importlib
+    past = [f"{rel} imports semperfi.{room}.{module}" for rel, room, module, _ in _cross_room_imports() if module]
+    assert not past, "; ".join(past)
+    used: dict[str, set[str]] = {}
+    for _, room, _, names in _cross_room_imports():
+        used.setdefault(room, set()).update(names)
+    for room in MAY_IMPORT.keys() | {"eval"}:
+        face = importlib.import_module(f"semperfi.{room}")
+        assert set(face.__all__) == used.get(room, set()), (room, set(face.__all__) ^ used.get(room, set()))
+        for name in face.__all__:
+            assert getattr(face, name) is not None, (room, name)
 
 
 def test_the_leaf_modules_import_no_room():

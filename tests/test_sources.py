@@ -10,7 +10,8 @@ import sys
 import numpy as np
 import pytest
 
-from semperfi.iq import IqReader, IqWriter
+from semperfi.iq import IqWriter
+from semperfi.iq.reader import IqReader
 from semperfi.iq import source as source_module
 from semperfi.iq.source import SampleSource, SourceError
 

@@ -12,12 +12,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from ..gps.codes import ca_code, chips_apart, chips_offset
-from ..gps.constants import CA_CODE_LENGTH_CHIPS
-from ..receiver.acquisition import DopplerGrid, Peak, acquire
-from ..receiver.correlator import CodeBank, fill_lanes, lane_buffer, replica, sub_block_samples
-from ..receiver.tracking import NEXT_SAMPLE, Channel, LoopConfig, initial_state
-from ..receiver.workers import run_each
+from ..gps import CA_CODE_LENGTH_CHIPS, ca_code, chips_apart, chips_offset
+from ..receiver import (Channel, CodeBank, DopplerGrid, LoopConfig, NEXT_SAMPLE, Peak, acquire, fill_lanes,
+                        initial_state, lane_buffer, replica, run_each, sub_block_samples)
 from .twopath_track import TwoPaths, bank_lags, code_correlation, correlator_bank, fit_two_paths
 
 MEASURE_EVERY = 8                 # code periods per attenuation measurement
@@ -473,7 +470,7 @@ def caf_amplitude(samples: np.ndarray, fs_hz: float, if_hz: float, prn: int, cod
     correlator, which inflates the paper's estimate at low C/N0; that share is measured at code phases far from any
     peak of this PRN and taken out.
     """
-    from ..receiver.cn0 import correlate_ms
+    from ..receiver import correlate_ms
     k = int(round(fs_hz * 1e-3))
     x = samples[:k * n_blocks]
     peak = correlate_ms(x, fs_hz, prn, code_phase_chips, doppler_hz, if_hz)

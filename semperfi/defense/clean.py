@@ -6,11 +6,9 @@ from pathlib import Path
 
 from .. import config
 from ..errors import log_internal_error
-from ..iq import GR_COMPLEX, IBYTE, ISHORT, IqWriter
-from ..iq.source import SourceError, chunk_seconds, open_source
+from ..iq import GR_COMPLEX, IBYTE, ISHORT, IqWriter, SourceError, chunk_seconds, open_source
 from ..progress import progress as show_progress
-from ..receiver.interference import Monitor
-from ..receiver.outputs import EventLog
+from ..receiver import EventLog, Monitor
 from .guard import SpoofGuard
 
 

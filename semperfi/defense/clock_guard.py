@@ -54,11 +54,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy import special
 
-from ..gps.constants import SECONDS_PER_WEEK, SPEED_OF_LIGHT_M_S
-from ..receiver.chisquare import chi2_isf
-from ..receiver.clock import LAGS_S, ClockModel, ClockNoise, Innovation
-from ..receiver.integrity import pbias, trusted
-from ..receiver.types import Fix
+from ..gps import SECONDS_PER_WEEK, SPEED_OF_LIGHT_M_S
+from ..receiver import ClockModel, ClockNoise, Fix, Innovation, LAGS_S, chi2_isf, pbias, trusted
 
 NS_PER_M = 1e9 / SPEED_OF_LIGHT_M_S
 

@@ -43,7 +43,7 @@ DEFAULTS: dict = config.defaults(SECTIONS)
 def load_config(path=None, sets=()) -> dict:
     """The receiver's configuration with the defence's section: the defaults, then the TOML file at path, then the
     --set overrides; every value checked against its domain (ValueError: one line naming the key)."""
-    from ..receiver.config import SECTIONS as RECEIVER
+    from ..receiver import SECTIONS as RECEIVER
     sections = {**RECEIVER, **SECTIONS}
     cfg = config.load(config.defaults(sections), path, sets)
     config.check(cfg, sections)

@@ -22,10 +22,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..gps.codes import chips_offset
-from ..gps.constants import CA_CHIP_RATE_HZ, SPEED_OF_LIGHT_M_S
-from ..gps.geometry import enu_rotation
-from ..receiver.types import Fix
+from ..gps import CA_CHIP_RATE_HZ, SPEED_OF_LIGHT_M_S, chips_offset, enu_rotation
+from ..receiver import Fix
 from .identifier import ImuTrack
 
 CHIP_M = SPEED_OF_LIGHT_M_S / CA_CHIP_RATE_HZ

@@ -6,12 +6,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..gps.codes import chips_apart, chips_offset
-from ..gps.constants import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, L1_HZ, SPEED_OF_LIGHT_M_S
-from ..receiver.acquisition import Peak
-from ..receiver.chain import Receiver
-from ..receiver.integrity import trusted
-from ..receiver.types import TRUSTED_STATES, Fix
+from ..gps import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, L1_HZ, SPEED_OF_LIGHT_M_S, chips_apart, chips_offset
+from ..receiver import Fix, Peak, Receiver, TRUSTED_STATES, trusted
 from .beat import WINDOW_MS as BEAT_WINDOW_MS, two_carriers
 from .canceller import JOINT_WITHIN_CHIPS
 from .clock_guard import ClockGuard

@@ -13,9 +13,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numba import njit
 
-from ..gps.constants import CA_CHIP_RATE_HZ, L1_HZ
-from ..gps.codes import ca_code, chips_apart
-from ..receiver.acquisition import Caf, Peak
+from ..gps import CA_CHIP_RATE_HZ, L1_HZ, ca_code, chips_apart
+from ..receiver import Caf, Peak
 from .twopath import two_path_test
 
 

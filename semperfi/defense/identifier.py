@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from semperfi.gps.constants import L1_WAVELENGTH_M
+from semperfi.gps import L1_WAVELENGTH_M
 
 PAPER_THRESHOLD_M = 5.0
 # a peak that agrees with the clock is cleared only if the maneuver moved it this much along its line of sight (rms

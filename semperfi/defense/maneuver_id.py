@@ -14,12 +14,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..gps.codes import chips_apart
-from ..gps.constants import L1_WAVELENGTH_M
-from ..gps.ephemeris import satellite_position
-from ..gps.geometry import enu_rotation
-from ..receiver.acquisition import Peak
-from ..receiver.tracking import NEXT_SAMPLE, Channel, LoopConfig, initial_state
+from ..gps import L1_WAVELENGTH_M, chips_apart, enu_rotation, satellite_position
+from ..receiver import Channel, LoopConfig, NEXT_SAMPLE, Peak, initial_state
 from .identifier import INS_DRIFT_M, REQUIRED_SPREAD_M, ImuTrack, LineOfSight, PeakHistory, PeakVerdict, identify_peaks
 from .imu_track import find_maneuver
 

@@ -3,8 +3,8 @@
 import math
 from dataclasses import dataclass
 
-from ..gps.codes import chips_apart, chips_offset
-from ..receiver.acquisition import Peak
+from ..gps import chips_apart, chips_offset
+from ..receiver import Peak
 from .detector import Alarm
 
 

@@ -15,8 +15,8 @@ interference until it is cancelled (the legitimate twin, measured against the sa
 
 import math
 
-from ..gps.constants import CA_CHIP_RATE_HZ
-from ..receiver.acquisition import Peak
+from ..gps import CA_CHIP_RATE_HZ
+from ..receiver import Peak
 
 MAX_PLAUSIBLE_CN0_DBHZ = 58.0   # the strongest GPS L1 C/A signal on the ground is ~55 dB-Hz
 MIN_IMPLAUSIBLE_PRNS = 4        # an attacker that moves a position needs four PRNs or more

@@ -17,12 +17,8 @@ seconds away from the receiver's prediction is refused, and the rectified ranges
 
 from dataclasses import dataclass
 
-from ..gps.codes import chips_offset
-from ..gps.constants import CA_CODE_LENGTH_CHIPS, CA_CODE_PERIOD_S, SECONDS_PER_WEEK
-from ..gps.time import wrap_week_s
-from ..receiver.carried_time import Donor, carried, donor
-from ..receiver.navigation import NavDecoder
-from ..receiver.tracking import Channel
+from ..gps import CA_CODE_LENGTH_CHIPS, CA_CODE_PERIOD_S, SECONDS_PER_WEEK, chips_offset, wrap_week_s
+from ..receiver import Channel, Donor, NavDecoder, carried, donor
 from .canceller import AdversaryTrack, Canceller
 
 MODES = ("auto", "always", "off")

@@ -18,9 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from ..gps.codes import ca_code, chips_apart
-from ..gps.constants import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, L1_HZ
-from ..receiver.chisquare import chi2_isf
+from ..gps import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, L1_HZ, ca_code, chips_apart
+from ..receiver import chi2_isf
 
 
 @dataclass(frozen=True)

@@ -20,8 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from ..gps.codes import ca_code
-from ..receiver.correlator import MAX_SUB_SAMPLES, CodeBank, fill_lanes, lane_buffer, replica, sub_block_samples
+from ..gps import ca_code
+from ..receiver import MAX_SUB_SAMPLES, CodeBank, fill_lanes, lane_buffer, replica, sub_block_samples
 
 LAG_STEP_CHIPS = 0.1        # bank spacing: the triangles' kinks of two paths 0.2 chip apart fall between coarser lags
 LAG_MARGIN_CHIPS = 0.8      # the bank reaches this far beyond both paths

@@ -38,11 +38,9 @@ import numpy as np
 import pymap3d
 from pymavlink.dialects.v20 import common as mav
 
-from ..gps.geometry import enu_rotation
-from ..gps.time import GpsTime
-from ..iq.formats import as_format, encode_samples
-from ..sim.scenario import load_scenario
-from ..sim.simulate import CHUNK_S, make_live_simulator
+from ..gps import GpsTime, enu_rotation
+from ..iq import as_format, encode_samples
+from ..sim import CHUNK_S, load_scenario, make_live_simulator
 from .autopilot import CRUISE_S, GUIDED, Observer, Sitl
 from .closed_loop import CLOSED_LOOP_SETTINGS
 

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pymap3d
 
-from ..sim.scenario import load_scenario
+from ..sim import load_scenario
 from .metrics import errors
 
 CLOSED_LOOP_SETTINGS = ["attacker.enabled=true", "attacker.power_advantage_db=6.0", "attacker.offset_east_m=1000.0",

@@ -23,7 +23,7 @@ import numpy as np
 import pymap3d
 
 from ..errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, BadInput
-from ..iq.formats import format_by_name, format_by_sigmf_datatype
+from ..iq import format_by_name, format_by_sigmf_datatype
 from .gnss_sdr import (ITEM_TYPES, IONO_MODELS, TROP_MODELS, LOG_NAME, Fix, error_summary_m, fixes_ecef,
                        gnss_sdr_version, horizontal_errors_m, run_gnss_sdr)
 from .metrics import errors
@@ -37,7 +37,7 @@ class CrosscheckError(BadInput):
 
 def _sidecar_params(iq_path: Path) -> dict:
     """fs_hz / item_type / if_hz from the file's SigMF sidecar, as far as it says (empty when there is none)."""
-    from ..iq.sigmf import find_sidecar, read_sigmf_meta
+    from ..iq import find_sidecar, read_sigmf_meta
     meta_path = find_sidecar(iq_path)
     if meta_path is None:
         return {}

@@ -15,15 +15,11 @@ from typing import Iterator
 
 import numpy as np
 
-from ..defense.config import load_config
-from ..defense.guard import SpoofGuard
-from ..receiver.types import TRUSTED_STATES
-from ..gps.geometry import enu_rotation, geodetic_to_ecef
+from ..defense import SpoofGuard, load_config
+from ..receiver import DopplerGrid, TRUSTED_STATES, acquire, plot_before_after, run_file
+from ..gps import enu_rotation, geodetic_to_ecef
 from ..iq import open_iq
-from ..receiver.acquisition import DopplerGrid, acquire
-from ..receiver.plots import plot_before_after
-from ..receiver.run import run_file
-from ..sim.scenario import load_scenario
+from ..sim import load_scenario
 from .metrics import Truth, fix_errors, read_fixes
 
 BEFORE_AFTER_LAG_S = 2.0   # the before/after look comes this long after the first cancellation: settled, verified

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..flight.maneuver import Leg, ManeuverLimits, plan_trajectory
-from ..gps.geometry import enu_rotation, geodetic_to_ecef
+from ..flight import Leg, ManeuverLimits, plan_trajectory
+from ..gps import enu_rotation, geodetic_to_ecef
 
 MOTION_DT_S = 0.1
 # a maneuver within the paper's constraints: about 15 s, ending ~35 m from its start, turning twice

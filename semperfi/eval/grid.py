@@ -13,7 +13,7 @@ import random
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from ..iq.sigmf import sidecar_path
+from ..iq import sidecar_path
 from .metrics import run_metrics
 from .xgen import (GPS_SDR_SIM, OWN_DATE, PLACES, Case, maneuver_case, one_line, recording_s, run_case,
                    takeover_case)

@@ -20,8 +20,8 @@ from typing import NamedTuple
 import numpy as np
 import pymap3d
 
-from ..gps.time import GPS_EPOCH
-from ..receiver.types import TRUSTED_STATES
+from ..gps import GPS_EPOCH
+from ..receiver import TRUSTED_STATES
 
 SECONDS_PER_WEEK = 604800
 DEFENDED_STATES = ("recovered", "rectified")

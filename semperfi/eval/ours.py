@@ -13,8 +13,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from ..sim.run import simulate_to_file
-from ..sim.scenario import load_scenario
+from ..sim import load_scenario, simulate_to_file
 from .xgen import Case, recording_s
 
 

@@ -19,10 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..defense.identifier import MIN_SIGNATURE_M, PAPER_THRESHOLD_M
-from ..flight.maneuver import ManeuverLimits, draw
-from ..iq.sigmf import sidecar_path
-from ..receiver.types import TRUSTED_STATES
+from ..defense import MIN_SIGNATURE_M, PAPER_THRESHOLD_M
+from ..flight import ManeuverLimits, draw
+from ..iq import sidecar_path
+from ..receiver import TRUSTED_STATES
 from .metrics import Truth, fix_errors, position_errors, read_events, read_fixes, run_metrics
 from .xgen import PLACES, Case, maneuver_case, recording_s, run_case, takeover_case
 
@@ -248,9 +248,9 @@ def _amplitude_errors(case: int, advantage_db: float, seed: int) -> list[float]:
     """|estimate / truth - 1| of the CAF-peak amplitude (the paper's equation 10, semperfi.defense.canceller) of
     every spoofer (cases 2, 4) or satellite (1, 3) in 60 ms of our simulator's signal; the spoofer 5 us off its
     twin (an unsynchronized one: the peaks stand apart, as the equation needs)."""
-    from ..defense.canceller import caf_amplitude
-    from ..sim.scenario import load_scenario
-    from ..sim.simulate import Simulator
+    from ..defense import caf_amplitude
+    from ..sim import load_scenario
+    from ..sim import Simulator
     spoofed = case in (2, 4)
     sets = [f"signal.fs_hz={AMPLITUDE_FS_HZ}", "time.duration_s=0.06", 'signal.format="gr_complex"',
             f"signal.seed={seed}", f"constellation.max_satellites={1 if case in (1, 2) else 8}",
@@ -294,10 +294,10 @@ def amplitude(ctx: Context) -> Figure:
 def _peak_separation_ns(case: Case, nav_path: str | None) -> float | None:
     """The mean code-phase separation between each satellite's signal and its synchronized spoofer's at the start
     (their ranges from the true and from the claimed position), over the satellites above 10 degrees."""
-    from ..gps.ephemeris import satellite_position
-    from ..gps.geometry import azimuth_elevation, geodetic_to_ecef
-    from ..sim.constellation import build_constellation
-    from ..sim.scenario import load_scenario
+    from ..gps import satellite_position
+    from ..gps import azimuth_elevation, geodetic_to_ecef
+    from ..sim import build_constellation
+    from ..sim import load_scenario
     from .ours import scenario_sets
     from .xgen import claimed_place
     const = build_constellation(load_scenario(None, scenario_sets(case, nav_path)))
@@ -360,7 +360,7 @@ def strong(ctx: Context) -> Figure:
     """A far stronger attacker: multi-stage attenuation as before/after acquisition plots, and spoofed against
     recovered offset at +15 dB (Figs. 'two step attenuation', 'spoofed vs recovered at 15 dB')."""
     from .demo import _before_after_plot
-    from ..defense.config import load_config
+    from ..defense import load_config
     fig = Figure("strong", "A +15 dB attacker: multi-stage attenuation, and the recovered offset")
     p = ctx.plan
     for offset in p.strong_offsets_m:
@@ -501,11 +501,11 @@ def timing(ctx: Context) -> Figure:
 def cancellation_iteration_s(work: Path, fs_hz: float, repeat: int) -> tuple[int, list[float]]:
     """One cancellation iteration as the paper's table times it: every spoofed PRN (8, +6 dB) through the canceller
     for 1 s of signal at fs_hz, then each re-acquired on the cleaned samples around its attacker's Doppler."""
-    from ..defense.canceller import Canceller, refine_peak
+    from ..defense import Canceller, refine_peak
     from ..iq import open_iq
-    from ..receiver.acquisition import DopplerGrid, acquire
-    from ..sim.run import simulate_to_file
-    from ..sim.scenario import load_scenario
+    from ..receiver import DopplerGrid, acquire
+    from ..sim import simulate_to_file
+    from ..sim import load_scenario
     path = work / "iteration.bin"
     simulate_to_file(load_scenario(None, [f"signal.fs_hz={fs_hz}", "time.duration_s=2.5",
                                           "constellation.max_satellites=8", "attacker.enabled=true",

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..gps.time import GPS_EPOCH
+from ..gps import GPS_EPOCH
 
 SPOOFED_M = 150.0           # a range this far from the reference's (half a chip) is not the twin's at all
 
@@ -102,10 +102,10 @@ def fingerprint(case, nav_path: str | Path, work: Path, gnss_sdr: bool = True, f
     from_s seconds into the recording), and what `clean` said it did."""
     import shutil
 
-    from ..defense.config import load_config
-    from ..defense.clean import clean_file
-    from ..iq.formats import ISHORT
-    from ..receiver.run import NoSignal, run_file
+    from ..defense import load_config
+    from ..defense import clean_file
+    from ..iq import ISHORT
+    from ..receiver import NoSignal, run_file
     from .gnss_sdr import GNSS_SDR_EXE, run_gnss_sdr
     from .xgen import RECEIVER_SETTINGS, prepare, score
     data, reference = prepare(case, nav_path, work), prepare(case.clean, nav_path, work)
@@ -187,9 +187,9 @@ def residual_profile(case, nav_path: str | Path, work: Path, cleaned: Path, prn:
     mix (the same legitimate signals and noise, as xgen mixes them) hold only what clean left of the spoofer and
     what it took of anything else; each is correlated with the PRN's code around the spoofer's code phase (found on
     the spoofer's scene alone) and set against the spoofer's and the twin's own correlations."""
-    from ..gps.codes import ca_code
-    from ..gps.constants import CA_CHIP_RATE_HZ, L1_HZ
-    from ..receiver.acquisition import DopplerGrid, acquire
+    from ..gps import ca_code
+    from ..gps import CA_CHIP_RATE_HZ, L1_HZ
+    from ..receiver import DopplerGrid, acquire
     from .xgen import OUTPUT_SCALE, prepare, scenes
     legit_scene, spoof_scene = scenes(case, nav_path, work)
     if spoof_scene is None:

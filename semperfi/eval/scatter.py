@@ -9,9 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..defense.config import load_config
-from ..defense.defended import DefendedReceiver
-from ..receiver.run import run_file
+from ..defense import DefendedReceiver, load_config
+from ..receiver import run_file
 from .xgen import RECEIVER_SETTINGS, Case, prepare
 
 SCATTER_MS = 2000      # the last two seconds of each channel's prompts

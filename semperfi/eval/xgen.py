@@ -26,10 +26,9 @@ import pymap3d
 from scipy.special import i0
 
 from ..errors import BadInput
-from ..flight.deadreckoning import write_track_csv
-from ..flight.maneuver import Leg, ManeuverLimits, plan_trajectory
-from ..iq.sigmf import build_sigmf_meta, sidecar_path, write_sigmf_meta
-from ..receiver.types import TRUSTED_STATES
+from ..flight import Leg, ManeuverLimits, plan_trajectory, write_track_csv
+from ..iq import build_sigmf_meta, sidecar_path, write_sigmf_meta
+from ..receiver import TRUSTED_STATES
 from .flightpath import MOTION_DT_S, ins_track, write_motion_csv
 from .metrics import Truth, fix_errors, gps_time, read_fixes
 
@@ -424,10 +423,10 @@ def run_case(case: Case, nav_path: str | Path, work: Path, defense: str = "full"
     receiver's wall time."""
     import functools
 
-    from ..defense.config import load_config
-    from ..defense.defended import DefendedReceiver
-    from ..defense.imu_track import read_imu_csv
-    from ..receiver.run import NoSignal, run_file
+    from ..defense import load_config
+    from ..defense import DefendedReceiver
+    from ..defense import read_imu_csv
+    from ..receiver import NoSignal, run_file
     data = prepare(case, nav_path, work)
     variant = "".join("-" + s.replace('"', "").replace("=", "-") for s in sets)
     out = work / f"{case.tag}-{defense}{'' if assisted else '-unassisted'}{'-imu' if imu_csv else ''}{variant}"
@@ -458,9 +457,9 @@ def one_line(exc: BaseException) -> str:
 def plugin_case(case: Case, nav_path: str | Path, work: Path, timeout_s: float = 1800.0) -> dict:
     """The plug-in claim on a case: `semperfi clean` on the mix, then GNSS-SDR, unmodified, on the cleaned file
     (troposphere off, as in the scenes); GNSS-SDR's horizontal error over its last 10 s and at most."""
-    from ..defense.config import load_config
-    from ..defense.clean import clean_file
-    from ..iq.formats import ISHORT
+    from ..defense import load_config
+    from ..defense import clean_file
+    from ..iq import ISHORT
     from .gnss_sdr import horizontal_errors_m, run_gnss_sdr
     data = prepare(case, nav_path, work)
     cleaned = work / f"{case.tag}-clean.bin"

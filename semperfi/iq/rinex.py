@@ -9,8 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..gps.ephemeris import Ephemeris, IonoParams, UtcParams
-from ..gps.time import GpsTime
+from ..gps import Ephemeris, GpsTime, IonoParams, UtcParams
 
 MAX_NAV_FILE_BYTES = 64 * 1024 * 1024
 

@@ -24,7 +24,7 @@ from sigmf.keys import (DATASET_KEY, DATATYPE_KEY, DATETIME_KEY, DESCRIPTION_KEY
                         RECORDER_KEY, SAMPLE_RATE_KEY, SAMPLE_START_KEY)
 
 from ..errors import BadInput
-from ..gps.constants import L1_HZ
+from ..gps import L1_HZ
 from .formats import _finite_float, _positive_float
 
 META_SUFFIX = ".sigmf-meta"

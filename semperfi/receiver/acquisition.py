@@ -12,8 +12,7 @@ import numpy as np
 import scipy.fft
 from numba import njit
 
-from ..gps.codes import UNUSED_G2_DELAYS, ca_code, gold_code
-from ..gps.constants import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, CA_CODE_PERIOD_S, L1_HZ
+from ..gps import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, CA_CODE_PERIOD_S, L1_HZ, UNUSED_G2_DELAYS, ca_code, gold_code
 from .chisquare import chi2_isf, chi2_median
 from .interference import NONE, Interference, excise_narrowband
 from .workers import cores, run_each, scratch

@@ -10,7 +10,7 @@ of a PRN's signals it locked on: the rounding takes the whole milliseconds from 
 
 from dataclasses import dataclass
 
-from ..gps.constants import CA_CODE_PERIOD_S, L1_HZ, SECONDS_PER_WEEK
+from ..gps import CA_CODE_PERIOD_S, L1_HZ, SECONDS_PER_WEEK
 from .navigation import NavDecoder
 from .tracking import Channel
 

@@ -9,10 +9,8 @@ from typing import NamedTuple
 import numpy as np
 
 from .. import config
-from ..gps.ephemeris import IonoParams, satellite_clock, satellite_position, satellite_position_velocity
-from ..gps.geometry import light_time_range
-from ..gps.constants import L1_WAVELENGTH_M, SECONDS_PER_WEEK, SPEED_OF_LIGHT_M_S
-from ..gps.time import GpsTime, wrap_week_s
+from ..gps import (GpsTime, IonoParams, L1_WAVELENGTH_M, SECONDS_PER_WEEK, SPEED_OF_LIGHT_M_S, light_time_range,
+                   satellite_clock, satellite_position, satellite_position_velocity, wrap_week_s)
 from .acquisition import Caf, DopplerGrid, acquire, is_cross_correlation
 from .carried_time import Donor, carried, donor
 from .config import Integrity

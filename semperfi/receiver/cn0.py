@@ -2,8 +2,7 @@
 
 import numpy as np
 
-from ..gps.codes import ca_code
-from ..gps.constants import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, L1_HZ
+from ..gps import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, L1_HZ, ca_code
 
 
 def correlate_ms(samples: np.ndarray, fs_hz: float, prn: int, code_phase_chips: float, doppler_hz: float,

@@ -17,8 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from ..gps.codes import ca_code
-from ..gps.constants import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS
+from ..gps import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, ca_code
 
 QUANTUM_CHIPS = 1e-3        # replica phases are within this (0.3 m) of the true code, dithered as the code moves:
                             # far below the DLL's noise (5e-4 gave the same fixes, for a bank twice as big)

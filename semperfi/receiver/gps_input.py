@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..address import parse_address
-from ..gps.geometry import enu_rotation
+from ..gps import enu_rotation
 from .types import Fix, vouched
 
 FIX_NO_FIX, FIX_3D = 1, 3          # GPS_FIX_TYPE (0 would say "no GPS connected")

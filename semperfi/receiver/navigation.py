@@ -34,11 +34,9 @@ from typing import Iterable
 
 import numpy as np
 
-from ..gps.constants import BITS_PER_SUBFRAME, SECONDS_PER_WEEK
-from ..gps.ephemeris import Ephemeris, IonoParams, UtcParams
-from ..gps.lnav import (PREAMBLE, SUBFRAMES_PER_WEEK, DecodedSubframe, check_parity, decode_subframe,
-                        ephemeris_from_subframes, iono_utc_from_subframe, week_of_subframe1)
-from ..gps.time import GpsTime
+from ..gps import (BITS_PER_SUBFRAME, DecodedSubframe, Ephemeris, GpsTime, IonoParams, PREAMBLE, SECONDS_PER_WEEK,
+                   SUBFRAMES_PER_WEEK, UtcParams, check_parity, decode_subframe, ephemeris_from_subframes,
+                   iono_utc_from_subframe, week_of_subframe1)
 
 BIT_S = 0.020                         # one LNAV data bit (50 bit/s)
 SUBFRAME_HEAD_BITS = 60               # TLM + HOW
@@ -402,7 +400,7 @@ class AssistedNav:
     @classmethod
     def from_rinex(cls, path: str | Path) -> "AssistedNav":
         """From a RINEX navigation file (ValueError, one line, if it has no usable GPS ephemeris)."""
-        from ..iq.rinex import read_rinex_nav
+        from ..iq import read_rinex_nav
         nav = read_rinex_nav(path)
         return cls(nav.ephemerides, nav.iono, nav.utc)
 

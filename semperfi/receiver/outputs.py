@@ -31,9 +31,7 @@ import numpy as np
 from pynmeagps import NMEAMessage
 from pynmeagps.nmeatypes_core import GET
 
-from ..gps.constants import SECONDS_PER_WEEK
-from ..gps.geometry import enu_rotation
-from ..gps.time import GPS_EPOCH
+from ..gps import GPS_EPOCH, SECONDS_PER_WEEK, enu_rotation
 from .types import TIME_STATES, Fix, vouched
 from .integrity import RAIM_STATES
 from .rinex_obs import ObsEpoch, RinexObsWriter

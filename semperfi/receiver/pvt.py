@@ -18,10 +18,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..gps.atmosphere import iono_delay_m, troposphere_delay_m
-from ..gps.constants import L1_WAVELENGTH_M, SECONDS_PER_WEEK, SPEED_OF_LIGHT_M_S
-from ..gps.ephemeris import IonoParams, satellite_clock, satellite_position_velocity, stack_ephemerides
-from ..gps.geometry import azimuth_elevation, ecef_to_geodetic, enu_rotation, rotate_earth
+from ..gps import (IonoParams, L1_WAVELENGTH_M, SECONDS_PER_WEEK, SPEED_OF_LIGHT_M_S, azimuth_elevation,
+                   ecef_to_geodetic, enu_rotation, iono_delay_m, rotate_earth, satellite_clock,
+                   satellite_position_velocity, stack_ephemerides, troposphere_delay_m)
 from . import integrity
 from .types import Fix, Observation
 

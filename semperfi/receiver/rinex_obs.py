@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Iterable, TextIO
 
 from .. import __version__
-from ..gps.time import GPS_EPOCH
+from ..gps import GPS_EPOCH
 
 OBS_TYPES = ("C1C", "L1C", "D1C", "S1C")
 

@@ -9,8 +9,8 @@ from pathlib import Path
 
 from .. import config
 from ..errors import NoSignal, log_internal_error
-from ..gps.time import GpsTime
-from ..iq.source import SampleSource, SourceError, chunk_seconds, open_source
+from ..gps import GpsTime
+from ..iq import SampleSource, SourceError, chunk_seconds, open_source
 from .chain import Receiver, RunStats
 from .config import SECTIONS
 from .navigation import AssistedNav

@@ -4,7 +4,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..gps.ephemeris import Ephemeris
+from ..gps import Ephemeris
 
 
 @dataclass(frozen=True)

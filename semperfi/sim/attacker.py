@@ -4,7 +4,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..gps.geometry import ecef_to_geodetic, enu_rotation
+from ..gps import ecef_to_geodetic, enu_rotation
 
 
 @dataclass(frozen=True)

@@ -9,10 +9,8 @@ from datetime import datetime
 
 import numpy as np
 
-from ..gps.ephemeris import Ephemeris, IonoParams, UtcParams
-from ..gps.lnav import quantize_ephemeris
-from ..gps.time import GpsTime
-from ..iq.rinex import read_rinex_nav
+from ..gps import Ephemeris, GpsTime, IonoParams, UtcParams, quantize_ephemeris
+from ..iq import read_rinex_nav
 
 # Broadcast Klobuchar coefficients of a quiet day (those of brdc0010.22n), used when no file gives any.
 DEFAULT_IONO = IonoParams((1.211e-08, -7.451e-09, -5.960e-08, 1.192e-07), (1.167e5, -2.458e5, -6.554e4, 1.114e6))

@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from ..gps.geometry import geodetic_to_ecef
+from ..gps import geodetic_to_ecef
 
 MAX_TRAJECTORY_ROWS = 10_000_000
 

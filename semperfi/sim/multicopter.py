@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from semperfi.flight.deadreckoning import GRAVITY_NED_MPS2
+from semperfi.flight import GRAVITY_NED_MPS2
 
 
 @dataclass(frozen=True)

@@ -4,9 +4,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..gps.constants import BITS_PER_SUBFRAME, SECONDS_PER_WEEK, SUBFRAME_S
-from ..gps.ephemeris import Ephemeris, IonoParams, UtcParams
-from ..gps.lnav import subframe_bits
+from ..gps import BITS_PER_SUBFRAME, Ephemeris, IonoParams, SECONDS_PER_WEEK, SUBFRAME_S, UtcParams, subframe_bits
 
 SUBFRAMES_PER_WEEK = int(SECONDS_PER_WEEK / SUBFRAME_S)
 

@@ -8,10 +8,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..gps.atmosphere import iono_delay_m, troposphere_delay_m
-from ..gps.constants import SPEED_OF_LIGHT_M_S
-from ..gps.ephemeris import Ephemeris, IonoParams, satellite_clock, satellite_position, satellite_position_velocity
-from ..gps.geometry import azimuth_elevation, ecef_to_geodetic, light_time_range
+from ..gps import (Ephemeris, IonoParams, SPEED_OF_LIGHT_M_S, azimuth_elevation, ecef_to_geodetic, iono_delay_m,
+                   light_time_range, satellite_clock, satellite_position, satellite_position_velocity,
+                   troposphere_delay_m)
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,7 @@ interpolated linearly between chunk boundaries), so each sample costs an add, tw
 import numpy as np
 from numba import njit
 
-from ..gps.constants import CA_CODE_LENGTH_CHIPS, CHIPS_PER_BIT
+from ..gps import CA_CODE_LENGTH_CHIPS, CHIPS_PER_BIT
 
 CARRIER_TABLE_BITS = 12
 CARRIER_TABLE = np.exp(2j * np.pi * (np.arange(1 << CARRIER_TABLE_BITS) + 0.5)

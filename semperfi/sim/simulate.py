@@ -12,11 +12,8 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from ..gps.codes import ca_code
-from ..gps.constants import CA_CHIP_RATE_HZ, CHIPS_PER_BIT, L1_WAVELENGTH_M, NAV_BIT_RATE_HZ, SPEED_OF_LIGHT_M_S
-from ..gps.ephemeris import stack_ephemerides
-from ..gps.geometry import geodetic_to_ecef
-from ..gps.lnav import quantize_ephemeris
+from ..gps import (CA_CHIP_RATE_HZ, CHIPS_PER_BIT, L1_WAVELENGTH_M, NAV_BIT_RATE_HZ, SPEED_OF_LIGHT_M_S, ca_code,
+                   geodetic_to_ecef, quantize_ephemeris, stack_ephemerides)
 from .attacker import AttackPlan
 from .constellation import Constellation, build_constellation
 from .motion import LiveMotion, StaticMotion, TrajectoryMotion

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..gps.geometry import ecef_to_geodetic
+from ..gps import ecef_to_geodetic
 from .simulate import ReceiverTruth, SignalTruth
 
 RECEIVER_COLUMNS = ["t_rx_s", "gps_week", "gps_tow_s", "lat_deg", "lon_deg", "height_m", "x_m", "y_m", "z_m",

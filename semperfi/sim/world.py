@@ -17,9 +17,8 @@ from typing import BinaryIO
 import numpy as np
 import pymap3d
 
-from ..gps.geometry import enu_rotation
-from ..iq import IqWriter
-from ..iq.formats import as_format, encode_samples
+from ..gps import enu_rotation
+from ..iq import IqWriter, as_format, encode_samples
 from .mavlink_vehicle import PHYSICS_HZ, MavlinkVehicle
 from .simulate import CHUNK_S, make_live_simulator
 
