@@ -50,11 +50,14 @@ def examine_stream(path, prns, duration, every_s=0.5):
 
 def test_fast_kernels_equal_their_references():
     rng = np.random.default_rng(2)
-    x = (rng.standard_normal(60000) + 1j * rng.standard_normal(60000)).astype(np.complex64)
-    offsets = np.arange(-2.0, 2.0001, 0.05)
-    fast = delay_profile(x, FS, 9, 300.37, 1234.0, 0.0, offsets, 20)
-    slow = delay_profile_reference(x, FS, 9, 300.37, 1234.0, 0.0, offsets, 20)
-    assert np.allclose(fast[0], slow[0], atol=1e-6) and np.allclose(fast[1], slow[1])
+    x = (rng.standard_normal(200000) + 1j * rng.standard_normal(200000)).astype(np.complex64)
+    for fs_hz, offsets in ((FS, np.arange(-2.0, 2.0001, 0.05)), (10e6, np.arange(-1.5, 1.5001, 0.1)),
+                           (2.6e6, np.array([-0.75, 0.0, 0.25, 1.5]))):
+        fast = delay_profile(x, fs_hz, 9, 300.37, 1234.0, 0.0, offsets, 20)
+        slow = delay_profile_reference(x, fs_hz, 9, 300.37, 1234.0, 0.0, offsets, 20)
+        assert np.allclose(fast[0], slow[0], atol=1e-6) and np.allclose(fast[1], slow[1]), fs_hz
+    with pytest.raises(ValueError):   # not on any grid of 1/1000 chip or coarser
+        delay_profile(x, FS, 9, 300.37, 1234.0, 0.0, np.array([0.0, 1 / 3000]), 20)
     # blocks' code steps off the bank's nominal one (a Doppler of ~3 ppm, a wrong crystal of 40 ppm)
     blocks = np.array([[100.0, 2000.0, 0.3, 0.5115 * (1 + 3e-6), 0.25, 0.0007],
                        [2100.0, 2000.0, 0.1, 0.5115 * (1 - 4e-5), 0.68, 0.0007]])

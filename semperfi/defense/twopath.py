@@ -44,34 +44,44 @@ PAD_CHIPS = 8
 
 
 @njit(cache=True, nogil=True, fastmath=True)
-def _profile_kernel(samples, block_carrier, carrier, code_phase_chips, chips_per_sample, fracs, frac_of, shift_of,
-                    code_pad, n_blocks, k):
-    """y[i, b] = sum over block b of the wiped samples * code(position + fracs[frac_of[i]] + shift_of[i]); and the
-    first block's replicas r[i, t], whose Gram matrix r r^T the caller forms (BLAS does a matrix product far faster).
+def _profile_kernel(samples, block_carrier, carrier, code_phase_chips, chips_per_sample, sub, frac_sub, frac_of,
+                    shift_of, code_pad, n_blocks, k):
+    """y[i, b] = sum over block b of the wiped samples * code(position + frac_sub[frac_of[i]] / sub + shift_of[i]);
+    and the first block's replicas r[i, t], whose Gram matrix r r^T the caller forms (BLAS does a matrix product far
+    faster).
 
-    Each block is wiped off (its carrier: one block's exponentials turned by the block's own) and its code
-    positions found here, in one pass. Offsets a whole number of chips apart cut the samples into the same runs of
-    one chip: for each fractional offset the samples are summed per chip once (bins), and each offset's correlation
-    is the code, shifted, against those sums -- a chip's worth of work per chip and offset instead of a sample's per
-    sample."""
+    Each block is wiped off (its carrier: one block's exponentials turned by the block's own) and its code positions
+    found here, in one pass. Every offset is a whole number of 1/sub chips: the samples are summed once per 1/sub of
+    a chip, and a chip's sum at any fractional offset is a difference of their running sums -- the cost of a block
+    no longer grows with the sample rate times the number of offsets. Offsets a whole number of chips apart share
+    those chip sums, and each offset's correlation is the code, shifted, against them."""
     n_off = frac_of.size
     n_chips = CA_CODE_LENGTH_CHIPS + 1
+    n_sub = CA_CODE_LENGTH_CHIPS * sub
     y = np.zeros((n_off, n_blocks), dtype=np.complex128)
-    w_re, w_im, pos = np.empty(k), np.empty(k), np.empty(k)
+    w_re, w_im, fine = np.empty(k), np.empty(k), np.empty(k, dtype=np.int64)
+    c_re, c_im = np.zeros(n_sub + 1), np.zeros(n_sub + 1)
     b_re, b_im = np.empty(n_chips), np.empty(n_chips)
     first = np.empty((n_off, k), dtype=np.float32)   # +/-1: its products sum exactly in single precision
     for b in range(n_blocks):
+        c_re[:] = 0.0
+        c_im[:] = 0.0
         for t in range(k):
             w = samples[b * k + t] * carrier[t] * block_carrier[b]
             w_re[t], w_im[t] = w.real, w.imag
-            pos[t] = (code_phase_chips + (b * k + t) * chips_per_sample) % CA_CODE_LENGTH_CHIPS
-        for f in range(fracs.size):
-            b_re[:] = 0.0
-            b_im[:] = 0.0
-            for t in range(k):
-                m = np.int64(pos[t] + fracs[f])   # >= 0: truncation is floor
-                b_re[m] += w_re[t]
-                b_im[m] += w_im[t]
+            pos = (code_phase_chips + (b * k + t) * chips_per_sample) % CA_CODE_LENGTH_CHIPS
+            fine[t] = min(np.int64(pos * sub), n_sub - 1)    # floor(pos + j / sub) = (fine + j) // sub
+            c_re[fine[t] + 1] += w_re[t]
+            c_im[fine[t] + 1] += w_im[t]
+        for g in range(n_sub):
+            c_re[g + 1] += c_re[g]
+            c_im[g + 1] += c_im[g]
+        for f in range(frac_sub.size):
+            j = frac_sub[f]
+            for m in range(n_chips):   # chip m at this offset: the 1/sub bins from m * sub - j on
+                lo, hi = max(m * sub - j, 0), min(m * sub - j + sub, n_sub)
+                b_re[m] = c_re[hi] - c_re[lo] if hi > lo else 0.0
+                b_im[m] = c_im[hi] - c_im[lo] if hi > lo else 0.0
             for i in range(n_off):
                 if frac_of[i] != f:
                     continue
@@ -83,17 +93,24 @@ def _profile_kernel(samples, block_carrier, carrier, code_phase_chips, chips_per
                 y[i, b] = acc_re + 1j * acc_im
                 if b == 0:
                     for t in range(k):
-                        first[i, t] = code_pad[np.int64(pos[t] + fracs[f]) + base]
+                        first[i, t] = code_pad[(fine[t] + j) // sub + base]
     return y, first
 
 
+MAX_SUB = 1000   # offsets on a grid finer than 1/MAX_SUB chip are refused
+
+
 def _split_offsets(offsets_chips):
-    """Each offset as a fractional part (shared by offsets whole chips apart) and a whole number of chips."""
+    """The offsets' grid (every offset a whole number of 1/sub chips), each offset's fractional part in 1/sub chips
+    (shared by offsets whole chips apart: frac_sub[frac_of[i]]) and its whole number of chips."""
     offsets = np.asarray(offsets_chips, dtype=np.float64)
-    shift = np.floor(offsets + 1e-9)
-    frac = np.round(offsets - shift, 9)
-    fracs, frac_of = np.unique(frac, return_inverse=True)
-    return fracs, frac_of.astype(np.int64), shift.astype(np.int64)
+    sub = next((r for r in range(1, MAX_SUB + 1) if np.allclose(offsets * r, np.round(offsets * r), atol=1e-6)), None)
+    if sub is None:
+        raise ValueError(f"delay offsets must lie on a grid of 1/{MAX_SUB} chip or coarser")
+    units = np.round(offsets * sub).astype(np.int64)
+    shift = np.floor_divide(units, sub)
+    frac_sub, frac_of = np.unique(units - shift * sub, return_inverse=True)
+    return sub, frac_sub.astype(np.int64), frac_of.astype(np.int64), shift.astype(np.int64)
 
 
 def _chips_per_sample(fs_hz, doppler_hz):
