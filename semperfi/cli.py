@@ -343,6 +343,8 @@ def clean(file, out_path, fs_hz, fmt, iq_swap, if_hz, adversarial, config_path, 
         click.echo(f"  PRN {prn:>2}: attenuation {', '.join(map(str, last)) or 'not yet measured'} dB (per SIC stage)")
     if s.gave_up:
         click.echo(f"  gave up on: {s.gave_up}", err=True)
+    if s.removed:
+        click.echo(f"  taken out whole (the output leaves them out): PRNs {' '.join(map(str, s.removed))}", err=True)
     if s.interference:
         click.echo(f"  warning: {s.interference} (left in the output)", err=True)
     if not s.satellites and not (s.internal_error or s.input_error or s.interrupted):

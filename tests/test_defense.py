@@ -441,6 +441,37 @@ def test_clean_keeps_format_rate_and_length_and_is_deterministic(tmp_path):
     assert "spoofing_alarm" in events and "defense_summary" in events
 
 
+@pytest.mark.parametrize("remove", [True, False], ids=["taken-out", "left"])
+def test_a_prn_given_up_by_the_plug_in_filter_is_taken_out_whole(tmp_path, monkeypatch, remove):
+    """Where the SIC stages (one here) find their cancelled peak still dominating (forced), the PRN is given up; the
+    plug-in filter then cancels what is left of it too (`prn_removed`, and the sidecar names it), so that the output
+    holds neither its spoofer nor its twin: a receiver behind it does without the satellite rather than take what
+    the stages left. Without the removal (the defended receiver, which leaves the PRN out of its fixes itself) its
+    twin stays in the samples, at its code phase."""
+    from semperfi.defense import guard as guard_module
+    from semperfi.defense.clean import clean_file
+    from semperfi.iq import read_sigmf_meta
+    rows = simulate(tmp_path / "s.bin", "constellation.max_satellites=5", "attacker.enabled=true",
+                    "attacker.prns=[8]", "attacker.power_advantage_db=6.0", "attacker.time_offset_s=5e-6",
+                    duration=6.0, fmt="gr_complex")
+    monkeypatch.setattr(guard_module.SpoofGuard, "_still_dominates", lambda self, prn, chips, sample: prn == 8)
+    if not remove:
+        monkeypatch.setattr(guard_module.SpoofGuard, "_remove", lambda *args: None)
+    cfg = load_config(None, ['defense.verify_after_s=0.5', 'defense.max_iterations=1'])
+    summary = clean_file(tmp_path / "s.bin", tmp_path / "c.bin", "gr_complex", FS, 0.0, cfg)
+    assert 8 in summary.gave_up, summary.gave_up
+    assert summary.removed == ((8,) if remove else ()), summary.removed
+    assert read_sigmf_meta(tmp_path / "c.sigmf-meta").extra.get("removed_prns") == ([8] if remove else [])
+    # the last second: the twin's power at its true code phase against the noise's, in the cleaned samples
+    x = open_iq(tmp_path / "c.bin").read(int(4.8 * FS), int(0.04 * FS))
+    twin = min((r for r in rows if r["prn"] == 8 and r["source"] == "legit"), key=lambda r: abs(r["t_rx_s"] - 4.8))
+    at_twin = _power_at(x, FS, 8, twin["code_phase_chips"], twin["doppler_hz"])
+    noise = _power_at(x, FS, 8, (twin["code_phase_chips"] + 500.0) % 1023, twin["doppler_hz"])
+    print(f"twin / noise after cleaning: {at_twin / noise:.1f}")
+    # a 45 dB-Hz twin stands ~20 dB over 1 ms of noise (x100); taken out, within the noise's own spread of 20 looks
+    assert (at_twin < 3 * noise) if remove else (at_twin > 20 * noise), (at_twin, noise)
+
+
 def _power_at(x, fs_hz, prn, code_phase_chips, freq_hz, ms=20):
     """Mean power of 1 ms correlations with one PRN's replica at a code phase and a frequency (IF + Doppler)."""
     n = int(fs_hz * 1e-3)

@@ -414,10 +414,11 @@ class Canceller:
         return {p for s in self.stages for p in s.tracks}
 
     def cancel(self, peak: Peak, peak_sample: int, stage: int = 0,
-               legit_code_phase_chips: float | None = None) -> AdversaryTrack | None:
+               legit_code_phase_chips: float | None = None, removal: bool = False) -> AdversaryTrack | None:
         """Start cancelling a peak at the given stage (0 = the first pass); None past the iteration bound.
-        legit_code_phase_chips: where the same PRN's legitimate peak is, at the same instant, when known."""
-        if stage >= self.cfg.max_stages:
+        legit_code_phase_chips: where the same PRN's legitimate peak is, at the same instant, when known.
+        removal: one stage past the bound, for what is left of a PRN given up (its remaining signal taken out)."""
+        if stage >= self.cfg.max_stages + (1 if removal else 0):
             return None
         while len(self.stages) <= stage:   # a new stage takes the previous one's output from its next sample on
             st = CancellerStage(self.fs_hz, self.if_hz, len(self.stages), self.cfg)

@@ -30,6 +30,7 @@ class CleanSummary:
     truncated_bytes: int = 0           # the input ended mid-sample
     missing_s: float = 0.0             # of the --duration asked for, what the input ended before
     interference: str | None = None    # what the input held besides GPS at the end, if anything
+    removed: tuple[int, ...] = ()      # PRNs given up and taken out whole: the output leaves them out
 
 
 def clean_file(in_path, out_path, fmt, fs_hz, if_hz, cfg: dict, events_path=None, progress: bool = False,
@@ -52,7 +53,8 @@ def clean_file(in_path, out_path, fmt, fs_hz, if_hz, cfg: dict, events_path=None
             metadata={"cleaned_from": source.name, "configuration": config.dumps_toml(cfg),
                       "skip_s": source.skip_samples / source.fs_in_hz},
             description="SemperFi plug-in filter output (spoofing signals cancelled)") as writer:
-        guard = SpoofGuard(cfg, source.fs_hz, source.if_hz, events, real_samples=source.real_valued)
+        guard = SpoofGuard(cfg, source.fs_hz, source.if_hz, events, real_samples=source.real_valued,
+                           remove_given_up=True)
         monitor = Monitor(source.fs_hz, source.if_hz, events.emit)
         chunk_s = chunk_seconds(source.fs_hz)
         chunks = source.chunks(chunk_s)
@@ -78,13 +80,15 @@ def clean_file(in_path, out_path, fmt, fs_hz, if_hz, cfg: dict, events_path=None
                 guard.finish()
             except Exception as exc:
                 internal_error = internal_error or log_internal_error(events, source.n_samples / source.fs_hz, exc)
+            # the sidecar says which satellites the output leaves out (given up, taken out whole)
+            writer.annotate("removed_prns", sorted(guard.removed))
         clipped = writer.clipped_fraction
     return CleanSummary(out_path, source.n_samples / source.fs_hz, time.perf_counter() - t0,
                         tuple(sorted(guard.alarmed_prns)), tuple(sorted(guard.cancel_started)),
                         tuple(sorted(guard.verified)), dict(guard.gave_up), guard.canceller.report(), clipped,
                         input_error, internal_error, interrupted, satellites=tuple(sorted(guard.present_prns)),
                         truncated_bytes=source.truncated_bytes, missing_s=source.missing_s,
-                        interference=monitor.watch.now)
+                        interference=monitor.watch.now, removed=tuple(sorted(guard.removed)))
 
 
 def _output_format(source):

@@ -60,10 +60,13 @@ EXAMINE_MAX_PEAKS = 16  # a strong spoofer's Doppler and code sidelobes are loca
 
 class SpoofGuard:
     def __init__(self, cfg: dict, fs_hz: float, if_hz: float = 0.0, events=None, on_cancel=None, on_release=None,
-                 maneuver=None, nav_context=None, real_samples: bool = False, continuing=None):
+                 maneuver=None, nav_context=None, real_samples: bool = False, continuing=None,
+                 remove_given_up: bool = False):
         """maneuver: a ManeuverIdentifier (an INS track with a maneuver in it), whose verdicts replace the policy's
         guesses; nav_context() -> (ephemeris_of(prn, tow_s), a recent fix) for its lines of sight.
-        real_samples: the samples are real values at an IF (their output must stay real and free of both images)."""
+        real_samples: the samples are real values at an IF (their output must stay real and free of both images).
+        remove_given_up: what is left of a PRN given up is cancelled too (the plug-in filter: the receiver behind it
+        cannot be told to leave the satellite out)."""
         self.cfg, self.d = cfg, cfg["defense"]
         if self.d["mode"] not in ("off", "detect", "full"):
             raise ValueError(f"--defense wants off, detect or full; got '{self.d['mode']}'")
@@ -96,6 +99,8 @@ class SpoofGuard:
         self.verified: set[int] = set()                  # PRNs whose legitimate peak dominates after cancellation
         self.pending_verify: dict[int, tuple[float, object, int]] = {}  # PRN -> (when, adversarial peak, stage)
         self.gave_up: dict[int, str] = {}
+        self.remove_given_up = remove_given_up
+        self.removed: set[int] = set()                   # PRNs given up and taken out whole (remove_given_up)
         # PRNs cancelled on power alone (no legitimate peak in sight); those whose cancellation takes everything away
         # are merged (the property)
         self._blind: set[int] = set()
@@ -571,8 +576,20 @@ class SpoofGuard:
             elif self.canceller.cancel(target, first, stage + 1) is None:
                 self.gave_up[prn] = f"{reason} after {stage + 1} SIC iterations (the bound)"
                 self._emit("cancellation_refused", t_s, prn=prn, reason=self.gave_up[prn])
+                if self.remove_given_up:
+                    self._remove(prn, target, first, stage + 1, t_s)
             else:
                 self.pending_verify[prn] = (t_s + self.d["verify_after_s"], target, stage + 1)
+
+    def _remove(self, prn: int, remainder: Peak, sample: int, stage: int, t_s: float) -> None:
+        """A PRN given up whose remainder still dominates where its spoofer was: that remainder (the legitimate twin
+        merged with what the stages left of the spoofer) is cancelled too, in one stage past the bound, so that a
+        receiver behind the plug-in filter does without the satellite rather than take a biased range from it."""
+        if self.canceller.cancel(remainder, sample, stage, removal=True) is None:
+            return
+        self.removed.add(prn)
+        self._emit("prn_removed", t_s, prn=prn, code_phase_chips=round(remainder.code_phase_chips, 4),
+                   reason="given up: what is left of it is cancelled too, the satellite left out of the output")
 
     def _left_merged(self, prn: int, t_s: float) -> None:
         """A cancellation on power alone left no signal at all: the legitimate one went with the attacker's, aligned
@@ -702,7 +719,8 @@ class SpoofGuard:
         """At the end of the stream: what the canceller achieved, and what was given up."""
         t_s = self._seen / self.fs_hz
         self._emit("defense_summary", t_s, alarms=sorted(self.alarmed_prns), cancelled=sorted(self.cancel_started),
-                   verified=sorted(self.verified), gave_up=self.gave_up, attenuation_db=self.canceller.report(),
+                   verified=sorted(self.verified), gave_up=self.gave_up, removed=sorted(self.removed),
+                   attenuation_db=self.canceller.report(),
                    resolved=sorted(p for p in self.present_prns | self.extra_prns if self.resolved(p)),
                    guessed=sorted(self.guessed), merged=sorted(self.merged),
                    suspect_close=sorted(self.detector.close))

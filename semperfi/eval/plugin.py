@@ -32,6 +32,8 @@ def read_ranges(rinex_path: str | Path) -> dict[int, Ranges]:
     """C1C and S1C per GPS PRN from a RINEX observation file (ours or GNSS-SDR's), read with georinex."""
     import georinex
     obs = georinex.load(str(rinex_path), use="G", meas=["C1C", "S1C"], fast=False)
+    if obs.time.size == 0:             # a receiver that never had an observation writes only the header
+        return {}
     t_s = (obs.time.values - np.datetime64(GPS_EPOCH.replace(tzinfo=None))) / np.timedelta64(1, "ns") * 1e-9
     out = {}
     for sv in obs.sv.values:
@@ -114,7 +116,7 @@ def fingerprint(case, nav_path: str | Path, work: Path, gnss_sdr: bool = True, f
     week, sow = case.truth.start_gps
     t0_s = week * 604800.0 + sow + from_s
     out = {"case": case.tag, "cleaned": str(cleaned), "cancelled": list(summary.cancelled), "gave_up": summary.gave_up,
-           "attenuation_db": summary.attenuation_db, "receivers": {}, "fixes": {}}
+           "removed": list(summary.removed), "attenuation_db": summary.attenuation_db, "receivers": {}, "fixes": {}}
     plain = load_config(None, ['defense.mode="off"', *RECEIVER_SETTINGS])
     obs = {}
     for name, path in (("reference", reference), ("cleaned", cleaned)):

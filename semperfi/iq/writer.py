@@ -67,6 +67,10 @@ class IqWriter:
         self.clipped_samples += clipped
         return clipped
 
+    def annotate(self, key: str, value) -> None:
+        """A fact about the samples learnt while writing them (JSON-able), in the sidecar's semperfi namespace."""
+        self._meta["global"][f"{NAMESPACE}:{key}"] = value
+
     def close(self) -> None:
         """Close the data file and (re)write the sidecar; calling it twice is harmless."""
         if self._file is None:
