@@ -15,14 +15,15 @@ Each run's fixes are scored against the truth, so a fast run that lost its fix s
 """
 
 import argparse
-import subprocess
 import sys
 import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "benchmarks"))
 
+import measure   # noqa: E402
 from semperfi.eval.gnss_sdr import horizontal_errors_m, run_gnss_sdr   # noqa: E402
 from semperfi.eval.xgen import PLACES, Case, prepare, score   # noqa: E402
 
@@ -30,28 +31,8 @@ BRDC = REPO.parent / "shared" / "data" / "brdc0010.22n"
 
 
 def command(data: Path, out: Path, *args: str) -> tuple[float, float]:
-    """`semperfi run` as a whole command: (wall s, peak anonymous resident memory MB). Anonymous: the memory the
-    process owns; the recording's memory-mapped pages are the kernel's page cache (a 60 s recording at 10 MSa/s is
-    2.4 GB of them), which ru_maxrss would count."""
-    cmd = [sys.executable, "-m", "semperfi.cli", "run", str(data), "--out", str(out), *args]
-    t0 = time.perf_counter()
-    proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    peak_kb = 0
-    while proc.poll() is None:
-        peak_kb = max(peak_kb, _anon_kb(proc.pid))
-        time.sleep(0.02)
-    wall = time.perf_counter() - t0
-    if proc.returncode != 0:
-        raise SystemExit(f"{' '.join(cmd)} failed: {proc.stderr.read().decode(errors='replace').strip()}")
-    return wall, peak_kb / 1024
-
-
-def _anon_kb(pid: int) -> int:
-    try:
-        with open(f"/proc/{pid}/status") as f:
-            return next((int(line.split()[1]) for line in f if line.startswith("RssAnon:")), 0)
-    except OSError:        # it ended between the poll and the read
-        return 0
+    """`semperfi run` as a whole command: (wall s, peak anonymous memory MB)."""
+    return measure.semperfi("run", str(data), "--out", str(out), *args)
 
 
 def ours(case: Case, data: Path, work: Path, name: str, repeat: int, *args: str) -> dict:
