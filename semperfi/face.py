@@ -2,6 +2,7 @@
 asked for (PEP 562), so that using one name of a room does not load all of it (its numba kernels, scipy)."""
 
 import importlib
+import sys
 
 
 def lazy_face(package: str, modules: dict[str, tuple[str, ...]]):
@@ -13,8 +14,7 @@ def lazy_face(package: str, modules: dict[str, tuple[str, ...]]):
         if name not in home:
             raise AttributeError(f"module {package!r} has no attribute {name!r}")
         value = getattr(importlib.import_module(f"{package}.{home[name]}"), name)
-        globals_of_package = importlib.import_module(package).__dict__
-        globals_of_package[name] = value          # the next lookup is a plain attribute
+        setattr(sys.modules[package], name, value)   # the next lookup is a plain attribute
         return value
 
     def __dir__():

@@ -7,7 +7,6 @@ CAF maximum, so the main peak is also tested for a second path underneath it (tw
 acquisition to the next, so a seamless takeover raises the alarm when the separation crosses the threshold.
 """
 
-import functools
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -15,7 +14,7 @@ from numba import njit
 
 from ..gps import CA_CHIP_RATE_HZ, L1_HZ, ca_code, chips_apart
 from ..receiver import Caf, Peak
-from .twopath import two_path_test
+from .twopath import float_code, two_path_test
 
 
 @dataclass(frozen=True)
@@ -134,14 +133,9 @@ def is_cross_talk(peak: Peak, caf: Caf, cafs: dict[int, Caf], cfg: DetectorConfi
 def cross_power(mine: Peak, other: Peak, fs_hz: float, n: int, k: int) -> float:
     """The mean over blocks of k samples (n // k of them) of |<mine's signal, other's signal>|^2 / k^2: how much of
     the other signal's power a correlation with mine's replica sees."""
-    return _cross_power_kernel(_code(mine.prn), mine.code_phase_chips, _chips_per_sample(mine, fs_hz),
-                               _code(other.prn), other.code_phase_chips, _chips_per_sample(other, fs_hz),
+    return _cross_power_kernel(float_code(mine.prn), mine.code_phase_chips, _chips_per_sample(mine, fs_hz),
+                               float_code(other.prn), other.code_phase_chips, _chips_per_sample(other, fs_hz),
                                2 * np.pi * (other.doppler_hz - mine.doppler_hz) / fs_hz, n - n % k, k)
-
-
-@functools.lru_cache(maxsize=64)
-def _code(prn: int) -> np.ndarray:
-    return ca_code(prn).astype(np.float64)
 
 
 def cross_power_reference(mine: Peak, other: Peak, fs_hz: float, n: int, k: int) -> float:

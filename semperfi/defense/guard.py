@@ -234,11 +234,12 @@ class SpoofGuard:
             self.sky_interference = (next(iter(cafs.values())).interference, t_s)
             self._absent_until = self._seen + int((self.d["full_search_every_s"] + ABSENT_MARGIN_S) * self.fs_hz)
         # a strong attacker's cross-talk puts peaks on absent PRNs: examining them every look would cost the most
-        self.present_prns |= {p for p, c in cafs.items() if examinable(c.best, c, cafs, self.detector.cfg, self.fs_hz)}
+        peaks = self._examinable_peaks(cafs)
+        self.present_prns |= peaks.keys()
         self._last_cafs.update(cafs)
         if self.maneuver is not None and self.maneuver.due_to_start(t_s):
             self._follow_through_maneuver(cafs)
-        self._check_power(cafs, t_s)
+        self._check_power(peaks, t_s)
         self.detector.hold(self._held_by_beat(t_s))
         for alarm in self.detector.examine(cafs, t_s, x if self.detector.sensitive else x[:self.window // 2]):
             self._alarm(alarm.prn, t_s, alarm.pair.as_event())
@@ -252,7 +253,7 @@ class SpoofGuard:
         are made on full looks of the same samples only: the power rule's thermal C/N0s sum every examinable
         signal, and a shorter look finds fewer of them examinable (GPS-SDR-SIM, a +10 dB aligned push: 0.7 dB lower,
         four of nine spoofers under the rule)."""
-        peaks = {p: c.best for p, c in cafs.items() if examinable(c.best, c, cafs, self.detector.cfg, self.fs_hz)}
+        peaks = self._examinable_peaks(cafs)
         return bool(implausible_peaks(peaks, MAX_PLAUSIBLE_CN0_DBHZ - QUIET_POWER_MARGIN_DB)) or any(
             auxiliary_peaks(cafs[p], cafs, self.detector.cfg, self.fs_hz) for p in peaks)
 
@@ -296,11 +297,14 @@ class SpoofGuard:
             if pairs:
                 self.awaiting_pairs[prn] = (pairs[0].main, pairs[0].auxiliary, first)
 
-    def _check_power(self, cafs: dict, t_s: float) -> None:
+    def _examinable_peaks(self, cafs: dict) -> dict:
+        """PRN -> its strongest peak, for the PRNs whose peak is a signal of its own (strong enough, not cross-talk)."""
+        return {p: c.best for p, c in cafs.items() if examinable(c.best, c, cafs, self.detector.cfg, self.fs_hz)}
+
+    def _check_power(self, peaks: dict, t_s: float) -> None:
         """Peaks received stronger than any satellite's signal can be are the attacker's: alarm and cancel them
         (not a guess), so that the legitimate twins hidden in the attacker's interference surface in the cleaned
-        samples the next looks search."""
-        peaks = {p: c.best for p, c in cafs.items() if examinable(c.best, c, cafs, self.detector.cfg, self.fs_hz)}
+        samples the next looks search. peaks: the look's examinable peaks (_examinable_peaks)."""
         for prn, cn0_dbhz in implausible_peaks(peaks).items():
             if prn in self.detector.alarmed or prn in self.merged:   # merged: known, watched for the two to part
                 continue

@@ -113,6 +113,14 @@ def _split_offsets(offsets_chips):
     return sub, frac_sub.astype(np.int64), frac_of.astype(np.int64), shift.astype(np.int64)
 
 
+@functools.lru_cache(maxsize=64)
+def float_code(prn: int) -> np.ndarray:
+    """The PRN's C/A code as +/-1.0 (read-only): what the kernels multiply samples by."""
+    code = ca_code(prn).astype(np.float64)
+    code.setflags(write=False)
+    return code
+
+
 def _chips_per_sample(fs_hz, doppler_hz):
     return CA_CHIP_RATE_HZ * (1.0 + doppler_hz / L1_HZ) / fs_hz
 
@@ -140,7 +148,7 @@ def delay_profile(samples, fs_hz, prn, code_phase_chips, doppler_hz, if_hz, offs
         raise ValueError(f"delay offsets beyond +/-{PAD_CHIPS - 1} chips")
     k = int(round(fs_hz * 1e-3))
     block_carrier, carrier = _carrier(fs_hz, doppler_hz, if_hz, n_blocks)
-    code = ca_code(prn).astype(np.float64)
+    code = float_code(prn)
     code_pad = np.concatenate([code[-PAD_CHIPS:], code, code[:PAD_CHIPS]])
     y, first = _profile_kernel(np.ascontiguousarray(samples[:k * n_blocks]), block_carrier, carrier,
                                float(code_phase_chips), _chips_per_sample(fs_hz, doppler_hz),
