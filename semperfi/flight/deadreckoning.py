@@ -28,7 +28,8 @@ class InsTrack:
     vel_ned_mps: np.ndarray   # (n, 3)
 
 
-def _rodrigues(phi: np.ndarray) -> np.ndarray:
+def rotation_matrix(phi: np.ndarray) -> np.ndarray:
+    """The rotation matrix of a rotation vector (Rodrigues): the strapdown's step, and the simulated airframe's."""
     a = float(np.linalg.norm(phi))
     k = np.array([[0, -phi[2], phi[1]], [phi[2], 0, -phi[0]], [-phi[1], phi[0], 0]])
     if a < 1e-9:
@@ -127,7 +128,7 @@ def integrate(t_s, accel_body_mps2, gyro_body_rps, c_nb0=None, vel0_ned_mps=None
     for i in range(len(t) - 1):
         dt = t[i + 1] - t[i]
         # trapezoid on rates and specific force: second-order accurate attitude and velocity
-        c_next = c @ _rodrigues(0.5 * (w[i] + w[i + 1]) * dt)
+        c_next = c @ rotation_matrix(0.5 * (w[i] + w[i + 1]) * dt)
         a0 = c @ f[i] + GRAVITY_NED_MPS2 - residual
         a1 = c_next @ f[i + 1] + GRAVITY_NED_MPS2 - residual
         v_next = v + 0.5 * (a0 + a1) * dt

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from semperfi.flight import GRAVITY_NED_MPS2
+from semperfi.flight import GRAVITY_NED_MPS2, rotation_matrix
 
 
 @dataclass(frozen=True)
@@ -57,15 +57,6 @@ def attitude(thrust_ned: np.ndarray, yaw_rad: float) -> np.ndarray:
     x_b = heading - (heading @ z_b) / z_b[2] * np.array([0.0, 0.0, 1.0])   # the nose over the heading (Euler yaw)
     x_b /= np.linalg.norm(x_b)
     return np.column_stack([x_b, np.cross(z_b, x_b), z_b])
-
-
-def _rotation(phi: np.ndarray) -> np.ndarray:
-    """The rotation matrix of a rotation vector (Rodrigues)."""
-    a = float(np.linalg.norm(phi))
-    k = np.array([[0, -phi[2], phi[1]], [phi[2], 0, -phi[0]], [-phi[1], phi[0], 0]])
-    if a < 1e-12:
-        return np.eye(3) + k
-    return np.eye(3) + math.sin(a) / a * k + (1 - math.cos(a)) / a ** 2 * (k @ k)
 
 
 def rotation_vector(c: np.ndarray) -> np.ndarray:
@@ -125,7 +116,7 @@ class Multicopter:
         c_next = attitude(axis, self.heading_rad)
         turned = rotation_vector(self.c_nb.T @ c_next)
         self.rates_body_rps = turned / dt_s
-        c_mid = self.c_nb @ _rotation(turned / 2)
+        c_mid = self.c_nb @ rotation_matrix(turned / 2)
         self.c_nb = c_next
         self.t_s += dt_s
         a = -c_mid[:, 2] * np.linalg.norm(wanted) + GRAVITY_NED_MPS2 + self._gust
