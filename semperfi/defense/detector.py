@@ -13,7 +13,7 @@ import numpy as np
 from numba import njit
 
 from ..gps import CA_CHIP_RATE_HZ, L1_HZ, ca_code, chips_apart
-from ..receiver import Caf, Peak
+from ..receiver import Caf, Peak, run_each
 from .twopath import float_code, two_path_test
 
 
@@ -336,15 +336,22 @@ class SpoofingDetector:
         streak starts again."""
         alarms = []
         sensitive = self.sensitive
+        pairs_of = {}   # the PRNs examined: their CAF's pairs
         for prn, caf in cafs.items():
             if prn in self.alarmed:      # under cancellation: the canceller's verification follows it
                 continue
             if not examinable(caf.best, caf, cafs, self.cfg, self.fs_hz):
                 self.single_looks[prn] = 0
                 continue
-            pairs = auxiliary_peaks(caf, cafs, self.cfg, self.fs_hz)
-            if not pairs and self.cfg.two_path and samples is not None:
-                hidden = hidden_pair(samples, self.fs_hz, self.if_hz, caf.best, self.cfg, sensitive)
+            pairs_of[prn] = auxiliary_peaks(caf, cafs, self.cfg, self.fs_hz)
+        # the two-path fits of the PRNs showing one peak, on every core (each fit is the same on any thread)
+        to_fit = [p for p, pairs in pairs_of.items() if not pairs] if self.cfg.two_path and samples is not None else []
+        fits = dict(zip(to_fit, run_each(
+            lambda p: hidden_pair(samples, self.fs_hz, self.if_hz, cafs[p].best, self.cfg, sensitive), to_fit)))
+        for prn, pairs in pairs_of.items():
+            caf = cafs[prn]
+            if prn in fits:
+                hidden = fits[prn]
                 # the fit takes each 1 ms block apart: a stronger PRN's cross-talk into the blocks is a second path
                 # to it (seen on GPS-SDR-SIM: 42 dB-Hz PRNs beside 60 dB-Hz spoofers, a "path" 12 dB down)
                 pairs = [hidden] if hidden and not is_cross_talk(hidden.auxiliary, caf, cafs, self.cfg, self.fs_hz,

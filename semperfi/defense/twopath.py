@@ -59,7 +59,7 @@ def _profile_kernel(samples, block_carrier, carrier, code_phase_chips, chips_per
     n_chips = CA_CODE_LENGTH_CHIPS + 1
     n_sub = CA_CODE_LENGTH_CHIPS * sub
     y = np.zeros((n_off, n_blocks), dtype=np.complex128)
-    w_re, w_im, fine = np.empty(k), np.empty(k), np.empty(k, dtype=np.int64)
+    chip, rest = np.empty(k, dtype=np.int64), np.empty(k, dtype=np.int64)
     c_re, c_im = np.zeros(n_sub + 1), np.zeros(n_sub + 1)
     b_re, b_im = np.empty(n_chips), np.empty(n_chips)
     first = np.empty((n_off, k), dtype=np.float32)   # +/-1: its products sum exactly in single precision
@@ -68,20 +68,27 @@ def _profile_kernel(samples, block_carrier, carrier, code_phase_chips, chips_per
         c_im[:] = 0.0
         for t in range(k):
             w = samples[b * k + t] * carrier[t] * block_carrier[b]
-            w_re[t], w_im[t] = w.real, w.imag
             pos = (code_phase_chips + (b * k + t) * chips_per_sample) % CA_CODE_LENGTH_CHIPS
-            fine[t] = min(np.int64(pos * sub), n_sub - 1)    # floor(pos + j / sub) = (fine + j) // sub
-            c_re[fine[t] + 1] += w_re[t]
-            c_im[fine[t] + 1] += w_im[t]
+            fine = min(np.int64(pos * sub), n_sub - 1)
+            c_re[fine + 1] += w.real
+            c_im[fine + 1] += w.imag
+            if b == 0:   # floor(pos + j / sub) = chip + (rest + j >= sub): no division per offset below
+                chip[t], rest[t] = fine // sub, fine % sub
         for g in range(n_sub):
             c_re[g + 1] += c_re[g]
             c_im[g + 1] += c_im[g]
         for f in range(frac_sub.size):
             j = frac_sub[f]
-            for m in range(n_chips):   # chip m at this offset: the 1/sub bins from m * sub - j on
-                lo, hi = max(m * sub - j, 0), min(m * sub - j + sub, n_sub)
-                b_re[m] = c_re[hi] - c_re[lo] if hi > lo else 0.0
-                b_im[m] = c_im[hi] - c_im[lo] if hi > lo else 0.0
+            # chip m at this offset: the 1/sub bins from m * sub - j on (the first chip starts at 0, the last one
+            # ends at n_sub: they are cut short, or empty)
+            b_re[0], b_im[0] = c_re[sub - j], c_im[sub - j]
+            for m in range(1, n_chips - 1):
+                lo = m * sub - j
+                b_re[m] = c_re[lo + sub] - c_re[lo]
+                b_im[m] = c_im[lo + sub] - c_im[lo]
+            lo = CA_CODE_LENGTH_CHIPS * sub - j
+            b_re[n_chips - 1] = c_re[n_sub] - c_re[lo] if j > 0 else 0.0
+            b_im[n_chips - 1] = c_im[n_sub] - c_im[lo] if j > 0 else 0.0
             for i in range(n_off):
                 if frac_of[i] != f:
                     continue
@@ -93,16 +100,18 @@ def _profile_kernel(samples, block_carrier, carrier, code_phase_chips, chips_per
                 y[i, b] = acc_re + 1j * acc_im
                 if b == 0:
                     for t in range(k):
-                        first[i, t] = code_pad[(fine[t] + j) // sub + base]
+                        first[i, t] = code_pad[chip[t] + (1 if rest[t] + j >= sub else 0) + base]
     return y, first
 
 
 MAX_SUB = 1000   # offsets on a grid finer than 1/MAX_SUB chip are refused
 
 
-def _split_offsets(offsets_chips):
+@functools.lru_cache(maxsize=16)
+def _split_offsets(offsets_chips: tuple) -> tuple:
     """The offsets' grid (every offset a whole number of 1/sub chips), each offset's fractional part in 1/sub chips
-    (shared by offsets whole chips apart: frac_sub[frac_of[i]]) and its whole number of chips."""
+    (shared by offsets whole chips apart: frac_sub[frac_of[i]]) and its whole number of chips (cached: every fit
+    asks for the same grid)."""
     offsets = np.asarray(offsets_chips, dtype=np.float64)
     sub = next((r for r in range(1, MAX_SUB + 1) if np.allclose(offsets * r, np.round(offsets * r), atol=1e-6)), None)
     if sub is None:
@@ -152,7 +161,8 @@ def delay_profile(samples, fs_hz, prn, code_phase_chips, doppler_hz, if_hz, offs
     code_pad = np.concatenate([code[-PAD_CHIPS:], code, code[:PAD_CHIPS]])
     y, first = _profile_kernel(np.ascontiguousarray(samples[:k * n_blocks]), block_carrier, carrier,
                                float(code_phase_chips), _chips_per_sample(fs_hz, doppler_hz),
-                               *_split_offsets(offsets_chips), code_pad, n_blocks, k)
+                               *_split_offsets(tuple(np.asarray(offsets_chips, dtype=np.float64))), code_pad,
+                               n_blocks, k)
     return y, (first @ first.T).astype(np.float64), k
 
 
