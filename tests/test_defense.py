@@ -221,15 +221,17 @@ def test_seamless_takeover_alarms_when_the_peaks_part_by_500_ns(tmp_path):
         assert separation_ns(alarm.prn, t - 1.05) < 500.0 or sep < 800.0, f"PRN {alarm.prn}: alarm late ({sep:.0f} ns)"
 
 
-def test_the_guard_looks_seldom_on_a_quiet_sky_and_still_alarms_a_takeover_a_look_after_500_ns(tmp_path):
-    """The guard itself, as `run` drives it: while nothing has been seen it looks every quiet_examine_every_s with
-    2 ms x QUIET_NONCOHERENT (the cheap looks of a clean sky), and a seamless takeover is alarmed at most one quiet
-    look and one confirming look (examine_every_s) after its peaks part by the alarm's separation plus the two-path
-    margin: before then the separation grows at the push's 200 ns/s."""
+# the push parts the peaks by the alarm's separation just before a search, and just before a fit
+@pytest.mark.parametrize("hold_s", [1.5, 2.5])
+def test_the_guard_looks_seldom_on_a_quiet_sky_and_still_alarms_a_takeover_a_look_after_500_ns(tmp_path, hold_s):
+    """The guard itself, as `run` drives it: while nothing has been seen it looks every quiet_examine_every_s, a
+    search with 2 ms x QUIET_NONCOHERENT and the two-path fits alone in turn (the cheap looks of a clean sky), and a
+    seamless takeover is alarmed at most one quiet look and one confirming look (examine_every_s) after its peaks part
+    by the alarm's separation plus the two-path margin: before then the separation grows at the push's 200 ns/s."""
     from semperfi.defense.detector import TWO_PATH_MARGIN_CHIPS, DetectorConfig
     from semperfi.defense.guard import QUIET_NONCOHERENT, SpoofGuard
     rows = simulate(tmp_path / "t.bin", "constellation.max_satellites=6", "attacker.enabled=true",
-                    'attacker.mode="takeover"', "attacker.push_speed_m_s=60.0", "attacker.push_hold_s=1.5",
+                    'attacker.mode="takeover"', "attacker.push_speed_m_s=60.0", f"attacker.push_hold_s={hold_s}",
                     "attacker.power_ramp_s=1.0", duration=10.0)
     cfg = load_config(None, ['defense.mode="detect"'])
     events, looks = [], []
@@ -244,6 +246,12 @@ def test_the_guard_looks_seldom_on_a_quiet_sky_and_still_alarms_a_takeover_a_loo
         looks.append((guard._seen / FS, guard._quiet(), noncoherent))
         return acquire_in_guard(window, prns, center_hz, span_hz, noncoherent)
     guard._acquire = spied
+    fit_in_guard, fits = guard._fit_again, []
+
+    def fit_spied(*args):
+        fits.append(guard._seen / FS)
+        return fit_in_guard(*args)
+    guard._fit_again = fit_spied
     reader, chunk = open_iq(tmp_path / "t.bin"), int(0.1 * FS)
     for i in range(0, int(10.0 * FS), chunk):
         guard.push(reader.read(i, chunk))
@@ -252,20 +260,24 @@ def test_the_guard_looks_seldom_on_a_quiet_sky_and_still_alarms_a_takeover_a_loo
     t_alarm = alarms[0]["t_s"]
     quiet = [(t, nc) for t, q, nc in looks if q]
     assert len(quiet) >= 2 and all(nc == QUIET_NONCOHERENT for _, nc in quiet), looks
-    assert all(b - a == pytest.approx(cfg["defense"]["quiet_examine_every_s"], abs=0.11)
-               for (a, _), (b, _) in zip(quiet, quiet[1:])), quiet
+    every_s = cfg["defense"]["quiet_examine_every_s"]
+    assert all(b - a == pytest.approx(2 * every_s, abs=0.11) for (a, _), (b, _) in zip(quiet, quiet[1:])), quiet
+    assert all(any(f - t == pytest.approx(every_s, abs=0.11) for f in fits) for t, _ in quiet[:-1]), (quiet, fits)
 
-    def separation_ns(t):
+    def separation_ns(t, prn):
         def at(src):
-            return min((r for r in rows if r["prn"] == alarms[0]["prn"] and r["source"] == src),
-                       key=lambda r: abs(r["t_rx_s"] - t))
+            return min((r for r in rows if r["prn"] == prn and r["source"] == src), key=lambda r: abs(r["t_rx_s"] - t))
         return abs(at("spoof")["pseudorange_m"] - at("legit")["pseudorange_m"]) / 0.299792458
     chip_ns = 1e9 / 1.023e6
     alarm_ns = (DetectorConfig().separation_chips + TWO_PATH_MARGIN_CHIPS) * chip_ns
-    assert separation_ns(t_alarm) > 450.0, f"alarm at {separation_ns(t_alarm):.0f} ns"
-    late_s = cfg["defense"]["quiet_examine_every_s"] + cfg["defense"]["examine_every_s"] + 0.1   # + one chunk
-    # the fit's delay grid (0.05 chip) and the look's window (40 ms) on top of the separation it alarms at
-    assert separation_ns(t_alarm - late_s) < alarm_ns + 0.05 * chip_ns + 0.04 * 200.0, separation_ns(t_alarm - late_s)
+    at_alarm_ns = separation_ns(t_alarm, alarms[0]["prn"])
+    assert at_alarm_ns > 450.0, f"alarm at {at_alarm_ns:.0f} ns"
+    late_s = every_s + cfg["defense"]["examine_every_s"] + 0.1   # + one chunk
+    # no PRN had parted by the separation it alarms at (plus the fit's delay grid, 0.05 chip, and the look's window,
+    # 40 ms) longer than that before the first alarm
+    spoofed = {r["prn"] for r in rows if r["source"] == "spoof"}
+    parted = {p: separation_ns(t_alarm - late_s, p) for p in spoofed}
+    assert max(parted.values()) < alarm_ns + 0.05 * chip_ns + 0.04 * 200.0, (t_alarm, parted)
 
 
 @pytest.mark.parametrize("advantage_db", [0.0, 3.0, 6.0, 10.0])
