@@ -7,6 +7,7 @@ CAF maximum, so the main peak is also tested for a second path underneath it (tw
 acquisition to the next, so a seamless takeover raises the alarm when the separation crosses the threshold.
 """
 
+import functools
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -130,9 +131,11 @@ def is_cross_talk(peak: Peak, caf: Caf, cafs: dict[int, Caf], cfg: DetectorConfi
     return leaked >= peak.metric * CROSS_TALK_SHARE
 
 
+@functools.lru_cache(maxsize=4096)
 def cross_power(mine: Peak, other: Peak, fs_hz: float, n: int, k: int) -> float:
     """The mean over blocks of k samples (n // k of them) of |<mine's signal, other's signal>|^2 / k^2: how much of
-    the other signal's power a correlation with mine's replica sees."""
+    the other signal's power a correlation with mine's replica sees (cached: a look asks the same of its peaks for
+    the guard's present PRNs, its screen, the power rule and the detector)."""
     return _cross_power_kernel(float_code(mine.prn), mine.code_phase_chips, _chips_per_sample(mine, fs_hz),
                                float_code(other.prn), other.code_phase_chips, _chips_per_sample(other, fs_hz),
                                2 * np.pi * (other.doppler_hz - mine.doppler_hz) / fs_hz, n - n % k, k)

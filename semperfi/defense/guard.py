@@ -58,6 +58,14 @@ ABSENT_MARGIN_S = 1.0  # a full search's absent PRNs stand this long past the ne
 EXAMINE_MAX_PEAKS = 16  # a strong spoofer's Doppler and code sidelobes are local maxima too: room for its twin
 
 
+def _keep_last(kept: np.ndarray, new: np.ndarray, n: int) -> np.ndarray:
+    """The last n samples of kept followed by new, in an array of their own (a chunk may be a reused buffer): at
+    10 MSa/s a chunk holds more than a look's window, and joining the two first copied 16 MB a chunk."""
+    if new.size >= n:
+        return new[-n:].copy()
+    return np.concatenate([kept[new.size - n:], new])
+
+
 class SpoofGuard:
     def __init__(self, cfg: dict, fs_hz: float, if_hz: float = 0.0, events=None, on_cancel=None, on_release=None,
                  maneuver=None, nav_context=None, real_samples: bool = False, continuing=None,
@@ -143,7 +151,7 @@ class SpoofGuard:
         """Samples in; the cleaned samples out (in order, a little behind: cancellation holds back a code period)."""
         chunk = np.asarray(chunk, dtype=np.complex64)
         self._seen += chunk.size
-        self._raw = np.concatenate([self._raw, chunk[-self.window:]])[-self.window:]
+        self._raw = _keep_last(self._raw, chunk, self.window)
         if self.maneuver is not None:
             self.maneuver.push(chunk)
             if self.maneuver.due_to_end(self._seen / self.fs_hz):
@@ -164,12 +172,12 @@ class SpoofGuard:
         cleaned = self.canceller.push(chunk)
         self._forget_lost(self._seen / self.fs_hz)
         self._cleaned += cleaned.size
-        self._clean = np.concatenate([self._clean, cleaned[-self.window:]])[-self.window:]
+        self._clean = _keep_last(self._clean, cleaned, self.window)
         if self.alarmed_prns:
             under = frozenset(self.canceller.prns)
             if under != self._deep_under:    # a look mixing two sets of cancellations would see a spoofer's edge
                 self._deep, self._deep_under = np.empty(0, dtype=np.complex64), under
-            self._deep = np.concatenate([self._deep, cleaned[-self.deep_window:]])[-self.deep_window:]
+            self._deep = _keep_last(self._deep, cleaned, self.deep_window)
         self._verify()
         return cleaned
 
