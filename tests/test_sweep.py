@@ -49,8 +49,10 @@ def test_a_grid_is_every_combination_and_a_random_sample_is_seeded(tmp_path):
     ('[space]\nstart_s = [90000]\n', "navigation file's day"),
     ('[space]\nfs_hz = [1e9]\n', "fs_hz"),
     ('[space]\nadvantage_db = []\n', "non-empty list"),
-    ('[sweep]\nsample = "all"\n', "sample must be"),
-    ('[sweep]\ncells = 0\nsample = "random"\n', "cells must be"),
+    ('[sweep]\nsample = "all"\n', "'sweep.sample' must be one of grid, random, got 'all'"),
+    ('[sweep]\ncells = 0\nsample = "random"\n', "'sweep.cells' must be between 1 and 1e+06, got 0"),
+    ('[sweep]\nsets = [3]\n', "sweep.sets must be a list of strings"),
+    ('[sweep]\nwind = 3\n', "unknown configuration key 'sweep.wind'"),
     ('[space\n', "cannot read"),
 ])
 def test_a_bad_spec_is_one_line_naming_what_is_wrong(tmp_path, text, says):

@@ -43,6 +43,7 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import Callable, Iterator
 
+from .. import config
 from ..errors import BadInput
 from .grid import COLUMNS, Cell, run_cell
 from .xgen import GENERATORS, GPS_SDR_SIM, PLACES, ephemeris_day, gps_sdr_sim_path, one_line
@@ -62,6 +63,16 @@ class SweepError(BadInput):
 
 
 @dataclass(frozen=True)
+class SweepHead:
+    """A spec's [sweep] table."""
+    sample: str = config.key("grid", choices=("grid", "random"),
+                             doc="every combination of the [space] values, or a seeded random sample of them")
+    cells: int = config.key(100, 1, 1_000_000, doc="how many cells a random sample draws")
+    seed: int = config.key(1, doc="the random sample's seed")
+    sets: list = config.key([], doc="receiver settings for every cell, KEY=VALUE as `semperfi run --set` takes them")
+
+
+@dataclass(frozen=True)
 class Spec:
     path: Path
     sample: str
@@ -77,22 +88,22 @@ def load_spec(path: str | Path) -> Spec:
         doc = tomllib.loads(path.read_text())
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise SweepError(f"{path}: cannot read the sweep spec ({one_line(exc)})") from None
-    head, space = doc.get("sweep", {}), doc.get("space", {})
-    if not isinstance(head, dict) or not isinstance(space, dict):
-        raise SweepError(f"{path}: [sweep] and [space] must be tables")
-    unknown = sorted(set(space) - set(SPACE_KEYS)) + sorted(set(head) - {"sample", "cells", "seed", "sets"})
+    space = doc.pop("space", {})
+    if not isinstance(space, dict):
+        raise SweepError(f"{path}: [space] must be a table")
+    unknown = sorted(set(space) - set(SPACE_KEYS))
     if unknown:
         raise SweepError(f"{path}: unknown key {unknown[0]!r} (space keys: {', '.join(SPACE_KEYS)})")
-    sample = head.get("sample", "grid")
-    if sample not in ("grid", "random"):
-        raise SweepError(f"{path}: sample must be \"grid\" or \"random\", not {sample!r}")
-    n_cells, seed, sets = head.get("cells", 100), head.get("seed", 1), head.get("sets", [])
-    if not (isinstance(n_cells, int) and not isinstance(n_cells, bool) and 1 <= n_cells <= 1_000_000):
-        raise SweepError(f"{path}: cells must be a whole number from 1 to 1000000")
-    if not isinstance(seed, int) or isinstance(seed, bool):
-        raise SweepError(f"{path}: seed must be a whole number")
-    if not (isinstance(sets, list) and all(isinstance(s, str) for s in sets)):
-        raise SweepError(f"{path}: sets must be a list of strings (KEY=VALUE)")
+    sections = {"sweep": SweepHead}
+    try:
+        head = config.merge(config.defaults(sections), doc)
+        config.check(head, sections)
+    except ValueError as exc:
+        raise SweepError(f"{path}: {exc}") from None
+    head = config.section(head, "sweep", SweepHead)
+    if not all(isinstance(s, str) for s in head.sets):
+        raise SweepError(f"{path}: sweep.sets must be a list of strings (KEY=VALUE)")
+    sample = head.sample
     for key, values in space.items():
         ranged = isinstance(values, dict)
         if ranged and (sample == "grid" or set(values) - {"min", "max"} or not all(
@@ -101,7 +112,7 @@ def load_spec(path: str | Path) -> Spec:
             raise SweepError(f"{path}: {key}: a range is {{min = .., max = ..}}, min <= max, in a random sample only")
         if not ranged and not (isinstance(values, list) and values):
             raise SweepError(f"{path}: {key} must be a non-empty list of values")
-    spec = Spec(path, sample, n_cells, seed, tuple(sets), space)
+    spec = Spec(path, sample, head.cells, head.seed, head.sets, space)
     for cell in cells_of(spec, "2022/01/01,00:00:00"):     # every value checked before anything runs
         _check(cell, path)
     return spec
