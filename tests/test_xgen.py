@@ -190,8 +190,8 @@ def test_a_seeded_random_cell_of_the_issue22_grid_is_measured_without_a_crash_or
                                                                                                         brdc_path):
     """Issue 22's grid, one cell drawn at random (seeded: SEMPERFI_GRID_SEED, default 9) and shortened to 36 s: its
     scene's clean run to the first fix, the attack, and every metric. Whatever the cell, today's receiver must not
-    crash (the known gps_week crash on a subframe-1 start is an expected failure until it is fixed), must alarm,
-    and must not call a fix good while it is wrong or beyond its protection levels."""
+    crash (a subframe-1 start too: that crash is fixed and tested on its own), must alarm, and must not call a fix
+    good while it is wrong or beyond its protection levels."""
     import os
 
     from semperfi.eval.grid import issue22_cells, pick, run_cell, table_header, table_row
@@ -204,8 +204,6 @@ def test_a_seeded_random_cell_of_the_issue22_grid_is_measured_without_a_crash_or
     assert clean["crash"] is False and clean["error"] is None, clean
     assert clean["first_fix_s"] is not None and clean["first_fix_s"] < 20.0, clean
     assert clean["time_err_max_ns"] < 50.0, clean          # GPS-SDR-SIM's clock is perfect: the truth is the start
-    if attacked["crash"] and cell.kind == "static" and cell.date.endswith("00:00:00"):
-        pytest.xfail(f"the receiver's known crash on a subframe-1 start: {attacked['error']}")
     assert attacked["crash"] is False and attacked["error"] is None, attacked
     assert attacked["clean_first_fix_s"] == clean["first_fix_s"], attacked
     assert 0.0 <= attacked["availability"] <= 1.0 and 0.0 <= attacked["longest_gap_s"] <= 36.0, attacked
