@@ -13,9 +13,10 @@ import random
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from .. import config
 from ..iq import sidecar_path
 from .metrics import run_metrics
-from .xgen import (GPS_SDR_SIM, OWN_DATE, PLACES, Case, maneuver_case, one_line, recording_s, run_case,
+from .xgen import (GENERATORS, GPS_SDR_SIM, OWN_DATE, PLACES, Case, maneuver_case, one_line, recording_s, run_case,
                    takeover_case)
 
 # gps-sdr-sim without -p: each satellite at 20200 km / range times the antenna pattern, up to 11 dB under the fixed
@@ -34,22 +35,24 @@ SHORT_EVENT_S = 12.0          # a shortened cell's maneuver, takeover or push st
 @dataclass(frozen=True)
 class Cell:
     """One attack on one scene. at_s: the flying receiver's maneuver start, the takeover's hold, the time push's
-    start; rate: the takeover's push east (m/s) or the time push's (ns/s)."""
+    start; rate: the takeover's push east (m/s) or the time push's (ns/s). Each field's domain is what a sweep's
+    [space] may ask of it (config.check)."""
     kind: str                      # static | flying | takeover | push
-    place: str = "boston"
+    place: str = config.key("boston", choices=tuple(PLACES))
     date: str = OWN_DATE
-    offset_m: float = 1000.0
-    advantage_db: float = 6.0
-    duration_s: float = 60.0
-    at_s: float = 0.0
-    rate: float = 0.0
+    offset_m: float = config.key(1000.0, 0.0, 1.0e6, unit="m", doc="the claimed position's distance from the truth")
+    advantage_db: float = config.key(6.0, -20.0, 40.0, unit="dB", doc="the attacker's power over the satellites'")
+    duration_s: float = config.key(60.0, 5.0, 3600.0, unit="s")
+    at_s: float = config.key(0.0, 0.0, 3600.0, unit="s")
+    rate: float = config.key(0.0, -1.0e4, 1.0e4, doc="m/s (takeover) or ns/s (time push)")
     imu: bool = False
-    fs_hz: float = 2.6e6
+    fs_hz: float = config.key(2.6e6, 1.0e6, 25.0e6, unit="Hz")
     path_loss: bool = True
-    cn0_dbhz: float = PATH_LOSS_CN0_DBHZ
-    azimuth_deg: float = 90.0      # where the claimed position lies from the truth (static and flying cells)
+    cn0_dbhz: float = config.key(PATH_LOSS_CN0_DBHZ, 20.0, 60.0, unit="dB-Hz")
+    azimuth_deg: float = config.key(90.0, -360.0, 360.0, unit="deg",
+                                    doc="where the claimed position lies from the truth (static and flying cells)")
     noise_seed: int = 1            # the receiver noise's
-    generator: str = GPS_SDR_SIM   # what renders the scene: gps-sdr-sim, or ours
+    generator: str = config.key(GPS_SDR_SIM, choices=GENERATORS, doc="what renders the scene: gps-sdr-sim, or ours")
 
     @property
     def label(self) -> str:

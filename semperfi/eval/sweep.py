@@ -46,7 +46,7 @@ from typing import Callable, Iterator
 from .. import config
 from ..errors import BadInput
 from .grid import COLUMNS, Cell, run_cell
-from .xgen import GENERATORS, GPS_SDR_SIM, PLACES, ephemeris_day, gps_sdr_sim_path, one_line
+from .xgen import GPS_SDR_SIM, ephemeris_day, gps_sdr_sim_path, one_line
 
 RESULTS_CSV = "results.csv"
 LOCK = ".sweep.lock"
@@ -119,19 +119,13 @@ def load_spec(path: str | Path) -> Spec:
 
 
 def _check(cell: Cell, path: Path) -> None:
+    """A cell's values against their domains (the Cell's fields), one line naming the first one outside."""
     if cell.kind not in KINDS:
         raise SweepError(f"{path}: kind {cell.kind!r} is not one of {', '.join(KINDS)}")
-    if cell.place not in PLACES:
-        raise SweepError(f"{path}: place {cell.place!r} is not one of {', '.join(PLACES)}")
-    numbers = {"duration_s": (5.0, 3600.0), "fs_hz": (1.0e6, 25.0e6), "advantage_db": (-20.0, 40.0),
-               "offset_m": (0.0, 1.0e6), "cn0_dbhz": (20.0, 60.0), "at_s": (0.0, 3600.0), "rate": (-1e4, 1e4),
-               "azimuth_deg": (-360.0, 360.0)}
-    for key, (low, high) in numbers.items():
-        value = getattr(cell, key)
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not low <= value <= high:
-            raise SweepError(f"{path}: {key} = {value!r} is outside [{low:g}, {high:g}]")
-    if cell.generator not in GENERATORS:
-        raise SweepError(f"{path}: generator {cell.generator!r} is not one of {', '.join(GENERATORS)}")
+    try:
+        config.check({"space": asdict(cell)}, {"space": Cell})
+    except ValueError as exc:
+        raise SweepError(f"{path}: {exc}") from None
     if not isinstance(cell.imu, bool) or not isinstance(cell.path_loss, bool):
         raise SweepError(f"{path}: imu and path_loss are true or false")
     if not isinstance(cell.noise_seed, int) or isinstance(cell.noise_seed, bool):
