@@ -15,6 +15,8 @@ class Defense:
     # cost: its looks are half as long), so that the defence costs little on a clean sky
     examine_every_s: float = key(0.5, 0.01, 3600.0, unit="s")
     quiet_examine_every_s: float = key(2.0, 0.01, 3600.0, unit="s")
+    # once every PRN alarmed is cancelled and verified and nothing waits on the looks, the attack is watched this often
+    settled_examine_every_s: float = key(1.0, 0.01, 3600.0, unit="s")
     # output held back at the start while the first looks (every 0.1 s) decide, so an attack present from the first
     # sample is cancelled from the first sample
     startup_s: float = key(0.3, 0.0, 60.0, unit="s")

@@ -292,8 +292,8 @@ class SpoofingDetector:
         return self.first_alarm_s is not None
 
     def pending(self) -> bool:
-        """Whether a pair has been seen that is still to be confirmed."""
-        return any(self.streak.values())
+        """Whether a pair has been seen that is still to be confirmed (an alarmed PRN's was)."""
+        return any(n for prn, n in self.streak.items() if prn not in self.alarmed)
 
     # What the guard tells the detector: its sets change only through these.
 

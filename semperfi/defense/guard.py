@@ -161,7 +161,8 @@ class SpoofGuard:
         starting = self.d["mode"] != "off" and self._seen < self._startup_samples
         if self.d["mode"] != "off" and self._seen >= self._next_exam and self._raw.size >= self.window:
             self._examine()
-            every = 0.1 if starting else self.d["quiet_examine_every_s" if self._quiet() else "examine_every_s"]
+            every = (0.1 if starting else self.d["quiet_examine_every_s"] if self._quiet()
+                     else self.d["settled_examine_every_s"] if self._settled() else self.d["examine_every_s"])
             self._next_exam = self._seen + int(every * self.fs_hz)
         if starting:                      # hold the first samples until the first looks have decided
             self._held.append(chunk)
@@ -185,6 +186,15 @@ class SpoofGuard:
         """Nothing at all seen of an attack (the most common case there is): no alarm, no pair waiting for its
         confirmation, past the start-up looks."""
         return not (self.detector.sensitive or self.detector.pending() or self._seen < self._startup_samples)
+
+    def _settled(self) -> bool:
+        """An attack known and dealt with: every PRN alarmed is cancelled and verified clean (or given up), and
+        nothing waits on the next looks (a verification, a pair to confirm, a close second signal, a merged pair to
+        part, a push's beat, a takeover's lone peaks, a maneuver)."""
+        return (self.alarm_t_s is not None and not self.pending_verify and not self.awaiting
+                and not self.detector.pending() and not self.detector.close and not self.merged
+                and self.push_beat_hz is None and not self.takeover and self.maneuver is None
+                and all(p in self.verified or p in self.gave_up for p in self.alarmed_prns))
 
     def flush(self) -> np.ndarray:
         """The samples still held back, at the end of the stream."""
