@@ -278,7 +278,7 @@ class SpoofGuard:
         """A quiet sky's every other look: no search, the two-path fits alone, around the peaks the last search
         found, carried to this window by their own Doppler (a 30 Hz error moves one 0.04 chip in 2 s; the fit spans
         +/-2 chips). A takeover's hidden pair is fitted at every look, as before; a second peak elsewhere and the
-        power rule are seen at every search, every other look: a look's search costs twice its fits."""
+        power rule are seen at every search, every other look (the search is the larger part of a look's cost)."""
         dt_s = (first - searched_first) / self.fs_hz
 
         def carried(p: Peak) -> Peak:
