@@ -192,21 +192,28 @@ def test_wrong_sample_rate_says_what_to_check(static_run, tmp_path):
 
 
 def test_a_loss_of_lock_costs_no_subframe_the_next_channel_takes_the_time_on(tmp_path, brdc_path):
-    """A second of nothing at 18 s: every channel loses lock. The channels acquired after it take the time the lost
+    """A second of nothing at 12 s: every channel loses lock. The channels acquired after it take the time the lost
     ones had read (receiver/carried_time), so the fixes come back with the loops (some 1.5 s after the signals), not
-    with the next HOW (6 s or more), and as accurate as before."""
+    with the next HOW (6 s or more), and as accurate as before. Then 7 s of nothing from 17 s, longer than a lost
+    channel's time is carried (DONOR_REACH_S): the channels after it take their whole milliseconds from the receiver's
+    clock, what the last fix predicts, and the fixes come back as soon (the next HOW would be at 27 s, read by 33 s)."""
     simulate(tmp_path / "a.bin", f'constellation.rinex="{brdc_path}"', 'time.start="2022-01-01T00:00:27"',
              duration=30.0)
     x = np.fromfile(tmp_path / "a.bin", dtype=np.int16)     # the simulator's ci16_le
-    x[int(18.0 * FS) * 2:int(19.0 * FS) * 2] = 0
+    x[int(12.0 * FS) * 2:int(13.0 * FS) * 2] = 0
+    x[int(17.0 * FS) * 2:int(24.0 * FS) * 2] = 0
     x.tofile(tmp_path / "a.bin")
     receive(tmp_path / "a.bin", tmp_path / "out", str(brdc_path))
     events = [json.loads(line) for line in open(tmp_path / "out" / "events.jsonl")]
-    assert len({e["prn"] for e in events if e["event"] == "loss_of_lock" and 18.0 < e["t_rx_s"] < 19.5}) >= 4
+    for start_s in (12.0, 17.0):
+        assert len({e["prn"] for e in events if e["event"] == "loss_of_lock" and start_s < e["t_rx_s"] < start_s + 1.5}) >= 4
     inherited = [e for e in events if e["event"] == "time_inherited"]
-    assert len(inherited) >= 4 and all(0.5 < e["gap_s"] < 5.0 for e in inherited), inherited
+    assert len(inherited) >= 4 and all(0.5 < e["gap_s"] < 5.0 and e["t_rx_s"] < 17.0 for e in inherited), inherited
+    clocked = [e for e in events if e["event"] == "time_from_clock"]
+    assert len(clocked) >= 4 and all(24.0 < e["t_rx_s"] < 27.0 and 7.0 < e["fix_age_s"] < 10.0 for e in clocked), clocked
     fixes = read_fixes(tmp_path / "out")
     t = np.array([float(f["t_rx_s"]) for f in fixes])
-    assert t[t < 18.0].size and t[t > 19.0].size and t[t > 19.0][0] < 21.5, t[t > 17.0][:3]
-    err = enu_errors([f for f in fixes if float(f["t_rx_s"]) > 19.0])
+    assert t[t < 12.0].size and t[t > 13.0].size and t[t > 13.0][0] < 15.5, t[t > 11.0][:3]
+    assert t[t > 24.0].size and t[t > 24.0][0] < 26.5, t[t > 16.0][:3]
+    err = enu_errors([f for f in fixes if float(f["t_rx_s"]) > 13.0])
     assert np.max(np.hypot(err[:, 0], err[:, 1])) < 10.0

@@ -61,6 +61,10 @@ class DefendedReceiver:
         self.inner = Receiver(cfg, fs_hz, if_hz, assisted, on_fix=self._label, events=events, week_hint=week_hint,
                               on_observations=on_observations)
         self.inner.min_sats_distrusting = 4 + self.guard.d["min_redundancy"]
+        # a channel without its own time is timed by the clock of the last fix before the alarm or called good since
+        # (a spoofed fix's clock may be anything the attacker made it)
+        self._time_fix: Fix | None = None
+        self.inner.time_reference = lambda: self._time_fix
         self.clock = ClockGuard(self.guard)   # time integrity: the clock model's alarm and the fixes' time_state
         if self.guard.d["mode"] == "full" and self.guard.d["rectify"] != "off":
             self.inner.rectifier = Rectifier(self.guard.d["rectify"], week_hint)
@@ -327,6 +331,8 @@ class DefendedReceiver:
             state = "recovered" if checked and unbiased and all(g.resolved(p) for p in fix.prns) else "recovering"
             if state == "recovered" and rectified:
                 state = "rectified"
+        if g.alarm_t_s is None or state in TRUSTED_STATES:
+            self._time_fix = fix
         if state in ("recovered", "rectified") and self.first_recovered_t_s is None:
             self.first_recovered_t_s = fix.t_rx_s
             if self.events is not None:

@@ -4,7 +4,7 @@ observables -> PVT, with every step reported as an event and every fix written a
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import numpy as np
 
@@ -12,7 +12,7 @@ from .. import config
 from ..gps import (GpsTime, IonoParams, L1_WAVELENGTH_M, SECONDS_PER_WEEK, SPEED_OF_LIGHT_M_S, light_time_range,
                    satellite_clock, satellite_position, satellite_position_velocity, wrap_week_s)
 from .acquisition import Caf, DopplerGrid, acquire, is_cross_correlation
-from .carried_time import Donor, carried, donor
+from .carried_time import CLOCK_TIME_MAX_AGE_S, Donor, carried, donor, from_clock, latest_epoch
 from .config import Integrity
 from .navigation import ASSIST_MAX_AGE_S, AssistedNav, NavDecoder
 from .pvt import solve
@@ -31,7 +31,8 @@ FALLBACK_IONO = IonoParams((0.1118e-07, -0.7451e-08, -0.5961e-07, 0.1192e-06),
                            (0.1167e+06, -0.2294e+06, -0.1311e+06, 0.1049e+07))
 
 
-WARM_RETRY_S = 0.5    # how soon a PRN lost moments ago is searched again (its carried time lasts DONOR_REACH_S)
+WARM_RETRY_S = 0.5    # how soon a PRN lost moments ago is searched again, while its next channel can be timed at once:
+WARM_RETRY_FOR_S = 10.0   # its lost channel's time carried (DONOR_REACH_S), or the clock's (a time reference) this long
 
 
 @dataclass
@@ -88,6 +89,7 @@ class Receiver:
         self.channels: dict[int, Channel] = {}
         self.decoders: dict[int, NavDecoder] = {}
         self.warm: dict[int, float] = {}            # PRN -> last Doppler, for warm re-acquisition after a loss
+        self._lost_at: dict[int, int] = {}          # PRN -> the absolute sample its channel lost lock at
         # PRNs a more sensitive search of these samples elsewhere found absent moments ago (the defence's full search,
         # which looks at every PRN over 40 ms): not searched cold again until it says otherwise
         self.absent_prns: frozenset[int] = frozenset()
@@ -129,6 +131,9 @@ class Receiver:
         # (channel, code period, its transmit time) that next channel took from it
         self._donors: dict[int, Donor] = {}
         self._carried: dict[int, tuple[Channel, int, float]] = {}
+        # the fix whose clock times a channel that has neither its own time nor a donor (a supervisor that tells
+        # trusted fixes from spoofed ones gives its last trusted one)
+        self.time_reference: Callable[[], Fix | None] = lambda: self.last_fix
         self.interference = Watch(self._emit)   # what the searches find besides GPS, reported when it changes
 
     # -- events ---------------------------------------------------------------------------------------------
@@ -198,8 +203,8 @@ class Receiver:
         if end >= self._next_acq_sample and self._buf.size >= self.acq_samples:
             self._acquire()
             every_s = self.cfg["acquisition"]["reacquire_s"]
-            if any(prn in self._donors and self._donors[prn].reaches(end, self.fs_hz) for prn in self.warm):
-                # a PRN lost moments ago whose time its next channel could still take: searched again soon
+            if any(self._timed_at_once(prn, end) for prn in self.warm):
+                # a PRN lost moments ago whose next channel would have its time at once: searched again soon
                 every_s = min(every_s, WARM_RETRY_S)
             self._next_acq_sample = end + int(every_s * self.fs_hz)
         run_each(lambda ch: ch.process(self._buf, self._base), [*self.channels.values(), *self.standby.values()])
@@ -216,6 +221,7 @@ class Receiver:
             if not ch.locked:
                 self._emit("loss_of_lock", end / self.fs_hz, prn=prn, cn0_dbhz=round(float(ch.cn0_dbhz), 1))
                 self.warm[prn] = ch.doppler_at(0)
+                self._lost_at[prn] = end
                 del self.channels[prn]
                 self._retire(prn, self.decoders.pop(prn, None), ch)
                 self.search_from(end)
@@ -224,6 +230,14 @@ class Receiver:
         if self._buf.size > keep:
             self._base += self._buf.size - keep
             self._buf = self._buf[-keep:]
+
+    def _timed_at_once(self, prn: int, sample: int) -> bool:
+        """Whether a PRN lost moments ago (WARM_RETRY_FOR_S) would be timed as soon as a new channel locks: by its
+        lost channel's time while that is carried, else by the receiver's clock."""
+        if prn in self._donors and self._donors[prn].reaches(sample, self.fs_hz):
+            return True
+        return sample - self._lost_at.get(prn, -np.inf) <= WARM_RETRY_FOR_S * self.fs_hz \
+            and self.time_reference() is not None
 
     def _append(self, chunk: np.ndarray) -> None:
         """_buf += chunk in one buffer kept for the whole run: where malloc hands big arrays back to the system
@@ -442,7 +456,7 @@ class Receiver:
         given = self._donors.get(prn)
         anchor = carried(ch, given) if given is not None else None
         if anchor is None:
-            return None
+            return self._clock_time(prn, ch)
         del self._donors[prn]
         sample = float(ch.epoch_sample[anchor[0] % ch.HISTORY_MS])   # the code epoch the time was carried to
         if not self._agrees_with_clock(prn, sample, anchor[1]):
@@ -450,6 +464,23 @@ class Receiver:
         self._carried[prn] = (ch, *anchor)
         self._emit("time_inherited", sample / self.fs_hz, prn=prn,
                    gap_s=round((sample - given.epoch_sample) / self.fs_hz, 3))
+        return anchor
+
+    def _clock_time(self, prn: int, ch: Channel) -> tuple[int, float] | None:
+        """(code period, its transmit time) of a channel from the receiver's clock: what the time reference (a
+        fix at most CLOCK_TIME_MAX_AGE_S old) predicts at its latest code epoch, to the whole millisecond."""
+        fix, latest = self.time_reference(), latest_epoch(ch)
+        if fix is None or latest is None:
+            return None
+        ms, sample = latest
+        age_s = sample / self.fs_hz - fix.t_rx_s
+        eph = self._ephemeris(prn, fix.gps_tow_s) if age_s <= CLOCK_TIME_MAX_AGE_S else None
+        predicted = self.predicted_transmit_time(eph, sample, fix) if eph is not None else None
+        if predicted is None:
+            return None
+        anchor = from_clock(ms, predicted)
+        self._carried[prn] = (ch, *anchor)
+        self._emit("time_from_clock", sample / self.fs_hz, prn=prn, fix_age_s=round(age_s, 3))
         return anchor
 
     def _agrees_with_clock(self, prn: int, sample: float, t_sv_s: float) -> bool:
