@@ -484,6 +484,37 @@ def test_a_prn_given_up_by_the_plug_in_filter_is_taken_out_whole(tmp_path, monke
     assert (at_twin < 3 * noise) if remove else (at_twin > 20 * noise), (at_twin, noise)
 
 
+@pytest.mark.parametrize("delay_chips", [0.4, 1.0])
+def test_the_plug_in_filter_takes_out_a_twin_too_close_under_a_much_stronger_spoofer(tmp_path, delay_chips):
+    """Every satellite (50 dB-Hz) spoofed 11 dB stronger, delayed by a common 0.4 chip (or 1 chip): cancelled on
+    power, each spoofer's twin found by the two-path fit under its peak (the alarm held none) and followed jointly.
+    0.4 chip under a +11 dB spoofer is too close (canceller.biased_twin): a receiver behind would take the twin's
+    range biased by what is left, so the plug-in filter gives each PRN up and takes its twin out too. A chip apart,
+    the twins stay, at their code phase."""
+    from semperfi.defense.canceller import BIASED_WITHIN_CHIPS
+    from semperfi.defense.clean import clean_file
+    rows = simulate(tmp_path / "s.bin", "constellation.max_satellites=5", "attacker.enabled=true",
+                    "attacker.offset_east_m=0.0", "attacker.power_advantage_db=11.0", "constellation.cn0_dbhz=50.0",
+                    f"attacker.time_offset_s={delay_chips / 1.023e6}", duration=6.0, fmt="gr_complex")
+    cfg = load_config(None, ['defense.verify_after_s=0.5'])
+    summary = clean_file(tmp_path / "s.bin", tmp_path / "c.bin", "gr_complex", FS, 0.0, cfg)
+    events = [json.loads(line) for line in open(tmp_path / "c.events.jsonl")]
+    twins = {e["prn"]: chips_apart(e["legitimate_code_phase_chips"], e["adversarial_code_phase_chips"])
+             for e in events if e["event"] == "cancellation_start" and e.get("twin_found_by") == "two_path"}
+    legit = sorted({int(r["prn"]) for r in rows if r["source"] == "legit"})
+    assert sorted(twins) == legit and all(abs(d - delay_chips) < 0.2 for d in twins.values()), twins
+    close = delay_chips < BIASED_WITHIN_CHIPS
+    assert summary.removed == (tuple(legit) if close else ()), (summary.removed, summary.gave_up)
+    x = open_iq(tmp_path / "c.bin").read(int(4.8 * FS), int(0.04 * FS))
+    for prn in legit:
+        twin = min((r for r in rows if r["prn"] == prn and r["source"] == "legit"),
+                   key=lambda r: abs(r["t_rx_s"] - 4.8))
+        at_twin = _power_at(x, FS, prn, twin["code_phase_chips"], twin["doppler_hz"])
+        noise = _power_at(x, FS, prn, (twin["code_phase_chips"] + 500.0) % 1023, twin["doppler_hz"])
+        # a 50 dB-Hz twin stands ~25 dB over 1 ms of noise (x300); taken out, within the noise's spread of 20 looks
+        assert (at_twin < 3 * noise) if close else (at_twin > 30 * noise), (prn, at_twin, noise)
+
+
 def _power_at(x, fs_hz, prn, code_phase_chips, freq_hz, ms=20):
     """Mean power of 1 ms correlations with one PRN's replica at a code phase and a frequency (IF + Doppler)."""
     n = int(fs_hz * 1e-3)

@@ -9,7 +9,7 @@ import numpy as np
 from ..gps import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, L1_HZ, SPEED_OF_LIGHT_M_S, chips_apart, chips_offset
 from ..receiver import Fix, Peak, Receiver, TRUSTED_STATES, trusted
 from .beat import WINDOW_MS as BEAT_WINDOW_MS, two_carriers
-from .canceller import JOINT_WITHIN_CHIPS
+from .canceller import JOINT_WITHIN_CHIPS, biased_twin
 from .clock_guard import ClockGuard
 from .continuity import Continuity
 from .guard import SpoofGuard
@@ -19,12 +19,6 @@ from .rectifier import Rectifier
 
 
 MAX_RECOVERED_RESIDUAL_M = 30.0
-# A legitimate signal within BIASED_WITHIN_CHIPS of a spoofer BIASED_TWIN_DB stronger keeps, after cancellation, the
-# spoofer's residual (some 25 dB down) within 15 dB of itself, and the closer the twin the worse the spoofer's own
-# estimate: a multipath at under a chip. Measured on GPS-SDR-SIM at +15 dB, 500 m: twins 0.4-0.5 chip away biased
-# 2-8 m, those 0.85-1.2 chip away under 1.5 m
-BIASED_TWIN_DB = 10.0
-BIASED_WITHIN_CHIPS = 0.6
 TWIN_SPACING_CHIPS = 0.1   # the early-late spacing of a legitimate channel with a spoofer within a chip
 TWIN_MEASURE_REACH_CHIPS = JOINT_WITHIN_CHIPS + 0.5   # a twin measured this far off has left the two-path tracker
 BEAT_CHECK_S = 0.25
@@ -137,8 +131,7 @@ class DefendedReceiver:
                 continue
             if ch.cfg.spacing_chips > TWIN_SPACING_CHIPS:
                 ch.cfg = replace(ch.cfg, spacing_chips=TWIN_SPACING_CHIPS)
-            gap_db, offset_chips = twin
-            if gap_db >= BIASED_TWIN_DB and abs(offset_chips) < BIASED_WITHIN_CHIPS:
+            if biased_twin(*twin):
                 self.inner.distrusted_prns.add(prn)
 
     def _measure_twin(self, prn: int, ch) -> None:

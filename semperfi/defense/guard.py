@@ -10,12 +10,12 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..gps import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, L1_HZ, chips_offset
+from ..gps import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, L1_HZ, chips_apart, chips_offset
 from ..receiver import DopplerGrid, Peak, acquire
 from .beat import BIN_HZ, WINDOW_MS as BEAT_WINDOW_MS, common_beat
-from .canceller import JOINT_WITHIN_CHIPS, Canceller, CancellerConfig, caf_amplitude, refine_peak
-from .detector import (Alarm, DetectorConfig, SpoofingDetector, auxiliary_peaks, examinable, in_units_of,
-                       is_cross_talk)
+from .canceller import JOINT_WITHIN_CHIPS, Canceller, CancellerConfig, biased_twin, caf_amplitude, refine_peak
+from .detector import (TWO_PATH_BLOCK_S, Alarm, DetectorConfig, SpoofingDetector, auxiliary_peaks, examinable,
+                       hidden_pair, in_units_of, is_cross_talk)
 from .power import MAX_PLAUSIBLE_CN0_DBHZ, implausible_peaks
 from .policy import POWER_MARGIN_DB, Choice, by_power, choose, parse_policy
 
@@ -561,6 +561,10 @@ class SpoofGuard:
         peak = refine_peak(x[:self.window // 4], self.fs_hz, self.if_hz, choice.adversarial)
         amplitude = caf_amplitude(x, self.fs_hz, self.if_hz, peak.prn, peak.code_phase_chips, peak.doppler_hz)
         legit = None if choice.legitimate is None else choice.legitimate.code_phase_chips
+        hidden = None
+        if legit is None or chips_apart(legit, peak.code_phase_chips) >= JOINT_WITHIN_CHIPS:
+            hidden = self._hidden_twin(x, peak)
+            legit = legit if hidden is None else hidden
         stage = sum(1 for s in self.canceller.stages if prn in s.tracks)
         if self.canceller.cancel(peak, peak_sample, stage, legit) is None:
             self.gave_up[prn] = f"still spoofed after {stage} SIC iterations"
@@ -575,9 +579,27 @@ class SpoofGuard:
         self._emit("cancellation_start", t_s, prn=prn, stage=stage, guessed=choice.guessed, reason=choice.reason,
                    adversarial_code_phase_chips=round(peak.code_phase_chips, 4),
                    adversarial_doppler_hz=round(peak.doppler_hz, 1), amplitude_estimate=amplitude,
-                   legitimate_code_phase_chips=None if legit is None else round(legit, 4))
+                   legitimate_code_phase_chips=None if legit is None else round(legit, 4),
+                   **({} if hidden is None else {"twin_found_by": "two_path"}))
         if self.on_cancel is not None:
             self.on_cancel(prn, peak, peak_sample)
+
+    def _hidden_twin(self, x: np.ndarray, peak: Peak) -> float | None:
+        """The code phase of a second signal within JOINT_WITHIN_CHIPS under the attacker's peak (at x's first
+        sample), found by the two-path fit, when the alarm's pair did not hold one so close: a strong spoofer hides a
+        twin that near, and a peak further off that the CAF showed (a cross-talk or noise maximum, when the spoofer
+        is only 500 m off) is no reason to cancel it alone -- its tracking, pulled by the twin's correlation, carves
+        an echo into the twin that biases every receiver behind (GPS-SDR-SIM, 500 m, +10 dB: 37-62 m on one PRN)."""
+        pair = hidden_pair(x, self.fs_hz, self.if_hz, peak, self.detector.cfg, sensitive=True)
+        if pair is None:
+            return None
+        caf = self._last_cafs.get(peak.prn)
+        if caf is not None and is_cross_talk(pair.auxiliary, caf, self._last_cafs, self.detector.cfg, self.fs_hz,
+                                             block_s=TWO_PATH_BLOCK_S):
+            return None
+        twin = max((pair.main, pair.auxiliary), key=lambda p: chips_apart(p.code_phase_chips, peak.code_phase_chips))
+        return twin.code_phase_chips if chips_apart(twin.code_phase_chips, peak.code_phase_chips) < JOINT_WITHIN_CHIPS \
+            else None
 
     def _verify(self) -> None:
         """SIC: once a stage has settled, re-acquire its PRN on the cleaned signal. If the cancelled peak still
@@ -627,6 +649,27 @@ class SpoofGuard:
                     self._remove(prn, target, first, stage + 1, t_s)
             else:
                 self.pending_verify[prn] = (t_s + self.d["verify_after_s"], target, stage + 1)
+        if self.remove_given_up:
+            self._remove_biased_twins(first, t_s)
+
+    def _remove_biased_twins(self, sample: int, t_s: float) -> None:
+        """The plug-in filter's verified PRNs whose legitimate twin lies too close under a much stronger spoofer
+        (canceller.biased_twin): a receiver behind it would take the twin's range biased by what is left of the
+        spoofer, so the PRN is given up and the twin taken out too (the receiver does without the satellite)."""
+        for prn in sorted(self.verified - self.removed - set(self.gave_up)):
+            twin = self.close_twin(prn)
+            if twin is None or not biased_twin(*twin):
+                continue
+            for tr, spoofer_chips in self.spoofers_at(prn, sample):
+                if tr.legit_offset_chips is None:
+                    continue
+                self.gave_up[prn] = (f"its legitimate twin lies {abs(twin[1]):.2f} chip under a spoofer {twin[0]:.1f} "
+                                     f"dB stronger: its range would stay biased")
+                self._emit("cancellation_refused", t_s, prn=prn, reason=self.gave_up[prn])
+                chips = float((spoofer_chips + tr.legit_offset_chips) % CA_CODE_LENGTH_CHIPS)
+                remainder = Peak(prn, chips, tr.channel.doppler_at(0), 0.0, 0.0)
+                self._remove(prn, remainder, sample, sum(1 for s in self.canceller.stages if prn in s.tracks), t_s)
+                break
 
     def _remove(self, prn: int, remainder: Peak, sample: int, stage: int, t_s: float) -> None:
         """A PRN given up whose remainder still dominates where its spoofer was: that remainder (the legitimate twin
