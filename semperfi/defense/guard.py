@@ -565,7 +565,7 @@ class SpoofGuard:
         if legit is None or chips_apart(legit, peak.code_phase_chips) >= JOINT_WITHIN_CHIPS:
             hidden = self._hidden_twin(x, peak)
             legit = legit if hidden is None else hidden
-        stage = sum(1 for s in self.canceller.stages if prn in s.tracks)
+        stage = self._stages(prn)
         if self.canceller.cancel(peak, peak_sample, stage, legit) is None:
             self.gave_up[prn] = f"still spoofed after {stage} SIC iterations"
             self._emit("cancellation_refused", t_s, prn=prn, reason=self.gave_up[prn])
@@ -583,6 +583,10 @@ class SpoofGuard:
                    **({} if hidden is None else {"twin_found_by": "two_path"}))
         if self.on_cancel is not None:
             self.on_cancel(prn, peak, peak_sample)
+
+    def _stages(self, prn: int) -> int:
+        """How many SIC stages cancel a PRN (the index of its next one)."""
+        return sum(1 for s in self.canceller.stages if prn in s.tracks)
 
     def _hidden_twin(self, x: np.ndarray, peak: Peak) -> float | None:
         """The code phase of a second signal within JOINT_WITHIN_CHIPS under the attacker's peak (at x's first
@@ -668,7 +672,7 @@ class SpoofGuard:
                 self._emit("cancellation_refused", t_s, prn=prn, reason=self.gave_up[prn])
                 chips = float((spoofer_chips + tr.legit_offset_chips) % CA_CODE_LENGTH_CHIPS)
                 remainder = Peak(prn, chips, tr.channel.doppler_at(0), 0.0, 0.0)
-                self._remove(prn, remainder, sample, sum(1 for s in self.canceller.stages if prn in s.tracks), t_s)
+                self._remove(prn, remainder, sample, self._stages(prn), t_s)
                 break
 
     def _remove(self, prn: int, remainder: Peak, sample: int, stage: int, t_s: float) -> None:

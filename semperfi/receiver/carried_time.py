@@ -57,7 +57,7 @@ def carried(channel: Channel, given: Donor) -> tuple[int, float] | None:
     if not given.reaches(epoch, channel.fs_hz):
         return None
     t_sv = given.t_sv_s + (epoch - given.epoch_sample) / channel.fs_hz * (1.0 + given.doppler_hz / L1_HZ)
-    return ms, round(t_sv / CA_CODE_PERIOD_S) * CA_CODE_PERIOD_S % SECONDS_PER_WEEK
+    return on_whole_ms(ms, t_sv)
 
 
 def latest_epoch(channel: Channel) -> tuple[int, float] | None:
@@ -69,7 +69,7 @@ def latest_epoch(channel: Channel) -> tuple[int, float] | None:
     return ms, float(channel.epoch_sample[ms % channel.HISTORY_MS])
 
 
-def from_clock(ms: int, predicted_t_sv_s: float) -> tuple[int, float]:
-    """(code period, its transmit time) of a channel from the transmit time the receiver's clock predicts at that
-    code epoch: the epoch leaves the satellite on a whole millisecond, the nearest one."""
-    return ms, round(predicted_t_sv_s / CA_CODE_PERIOD_S) * CA_CODE_PERIOD_S % SECONDS_PER_WEEK
+def on_whole_ms(ms: int, t_sv_s: float) -> tuple[int, float]:
+    """(code period, its transmit time) from a transmit time carried or predicted to that code epoch: the epoch
+    leaves the satellite on a whole millisecond, the nearest one."""
+    return ms, round(t_sv_s / CA_CODE_PERIOD_S) * CA_CODE_PERIOD_S % SECONDS_PER_WEEK

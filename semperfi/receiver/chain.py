@@ -12,7 +12,7 @@ from .. import config
 from ..gps import (GpsTime, IonoParams, L1_WAVELENGTH_M, SECONDS_PER_WEEK, SPEED_OF_LIGHT_M_S, light_time_range,
                    satellite_clock, satellite_position, satellite_position_velocity, wrap_week_s)
 from .acquisition import Caf, DopplerGrid, acquire, is_cross_correlation
-from .carried_time import CLOCK_TIME_MAX_AGE_S, Donor, carried, donor, from_clock, latest_epoch
+from .carried_time import CLOCK_TIME_MAX_AGE_S, Donor, carried, donor, latest_epoch, on_whole_ms
 from .config import Integrity
 from .navigation import ASSIST_MAX_AGE_S, AssistedNav, NavDecoder
 from .pvt import solve
@@ -478,7 +478,7 @@ class Receiver:
         predicted = self.predicted_transmit_time(eph, sample, fix) if eph is not None else None
         if predicted is None:
             return None
-        anchor = from_clock(ms, predicted)
+        anchor = on_whole_ms(ms, predicted)
         self._carried[prn] = (ch, *anchor)
         self._emit("time_from_clock", sample / self.fs_hz, prn=prn, fix_age_s=round(age_s, 3))
         return anchor
