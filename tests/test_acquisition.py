@@ -73,3 +73,41 @@ def test_doppler_wipe_by_spectrum_shift_equals_a_wipe_per_bin():
             blocks = np.fft.fft((x * np.exp(-2j * np.pi * (f + if_hz) * t)).reshape(-1, n_ms), axis=1)
             want = np.conj(blocks.reshape(2, 2, n_ms).sum(axis=1))[:, _kept_bins(n_ms)]
             assert np.allclose(fast[i], want, atol=1e-3 * np.abs(want).max()), (fs, f)
+
+
+def _one_signal(fs_hz, prn, code_phase_chips, doppler_hz, cn0_dbhz, ms, seed):
+    """A C/A signal (no data) in unit complex noise, its code phase at the first sample."""
+    from semperfi.gps import CA_CHIP_RATE_HZ, L1_HZ, ca_code
+    t = np.arange(int(round(fs_hz * ms * 1e-3))) / fs_hz
+    chips = np.floor(code_phase_chips + t * CA_CHIP_RATE_HZ * (1 + doppler_hz / L1_HZ)).astype(np.int64) % 1023
+    amplitude = np.sqrt(10 ** (cn0_dbhz / 10) / fs_hz)
+    rng = np.random.default_rng(seed)
+    noise = (rng.standard_normal(t.size) + 1j * rng.standard_normal(t.size)) / np.sqrt(2)
+    return (amplitude * ca_code(prn)[chips] * np.exp(2j * np.pi * doppler_hz * t) + noise
+            ).astype(np.complex64)
+
+
+@pytest.mark.parametrize("fs_hz", [2.6e6, 4e6, 10e6])
+def test_a_screen_finds_the_signal_where_the_full_search_does(fs_hz):
+    """A quiet look's screen (the guard's): each PRN's search kept to a Doppler window around where it was, over the
+    C/A main lobe's 2048 code phases a ms. Inside the window, the same rows as the full search (the same peak); a
+    window away from the signal finds nothing there; the main lobe alone puts the peak at the same code phase and
+    Doppler, a dB or so lower (2 columns a chip: up to a quarter chip off a column)."""
+    from semperfi.receiver import DopplerGrid, acquire
+    x = _one_signal(fs_hz, 7, 412.3, 1234.0, 45.0, 20, seed=1)
+    grid = DopplerGrid(0.0, 6000.0, 333.0)
+    full = acquire(x, fs_hz, [7, 9], grid, 0.0, 2, 10, 1e-3, 8)[7].best
+    windowed = acquire(x, fs_hz, [7, 9], grid, 0.0, 2, 10, 1e-3, 8,
+                       windows_hz={7: (1234.0 - 1500.0, 1234.0 + 1500.0)})[7].best
+    assert full is not None and windowed is not None
+    # the same rows and cells; the noise floor is the median of fewer of them
+    assert windowed.code_phase_chips == pytest.approx(full.code_phase_chips, abs=1e-6)
+    assert windowed.doppler_hz == pytest.approx(full.doppler_hz, abs=1e-3)
+    assert windowed.metric == pytest.approx(full.metric, rel=0.05)
+    assert abs(full.code_phase_chips - 412.3) < 0.05 and abs(full.doppler_hz - 1234.0) < 60.0
+    away = acquire(x, fs_hz, [7], grid, 0.0, 2, 10, 1e-3, 8, windows_hz={7: (-4500.0, -1500.0)})[7]
+    assert away.best is None and away.doppler_hz.max() <= -1500.0
+    screen = acquire(x, fs_hz, [7], grid, 0.0, 2, 10, 1e-3, 8, most_columns=2048)[7]
+    assert screen.code_phase_chips.size == min(2048, int(round(fs_hz * 1e-3)))
+    assert abs(screen.best.code_phase_chips - 412.3) < 0.1 and abs(screen.best.doppler_hz - 1234.0) < 60.0
+    assert -2.5 < screen.best.cn0_dbhz - full.cn0_dbhz < 0.5

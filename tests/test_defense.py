@@ -242,9 +242,9 @@ def test_the_guard_looks_seldom_on_a_quiet_sky_and_still_alarms_a_takeover_a_loo
     guard = SpoofGuard(cfg, FS, events=Events())
     acquire_in_guard = guard._acquire
 
-    def spied(window, prns, center_hz, span_hz, noncoherent):
+    def spied(window, prns, center_hz, span_hz, noncoherent, **screen):
         looks.append((guard._seen / FS, guard._quiet(), noncoherent))
-        return acquire_in_guard(window, prns, center_hz, span_hz, noncoherent)
+        return acquire_in_guard(window, prns, center_hz, span_hz, noncoherent, **screen)
     guard._acquire = spied
     fit_in_guard, fits = guard._fit_again, []
 

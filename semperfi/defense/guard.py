@@ -30,6 +30,13 @@ EXAMINE_NONCOHERENT = 20
 # (a 38 dB-Hz peak stands at ~5 detection thresholds); what it sees is decided on a full look of the same samples
 QUIET_NONCOHERENT = 10
 QUIET_POWER_MARGIN_DB = 3.0   # a quiet look's signals this close to the power rule are looked at in full
+# A quiet look searches each PRN seen before within this of its last Doppler (a quarter of the grid's rows): a
+# spoofer of a signal in track is within a few hertz of it (synchronized), a clock's 1 ppm away (1.6 kHz: its edge
+# shows in the window and is decided on a full look), or anywhere at the full searches every full_search_every_s
+QUIET_SPAN_HZ = 1500.0
+# and over the C/A code's main lobe alone (2048 code phases a ms: +-1.02 MHz, 0.5 dB of its power; 2 columns a chip,
+# interpolated): at 4 MSa/s and up half the cost of every column, and whatever it sees is looked at in full
+QUIET_COLUMNS = 2048
 # a peak this far from a cancelled spoofer's code phase, or further, is not its residual (the acquisition's code phase
 # is good to a few hundredths of a chip on a dominant peak)
 TWIN_MIN_CHIPS = 0.15
@@ -205,13 +212,19 @@ class SpoofGuard:
         return cleaned
 
     def _acquire(self, window: np.ndarray, prns, center_hz: float, span_hz: float,
-                 noncoherent: int = EXAMINE_NONCOHERENT):
-        """Every examination's search: the window's 2 ms x noncoherent, 333 Hz bins."""
+                 noncoherent: int = EXAMINE_NONCOHERENT, **screen):
+        """Every examination's search: the window's 2 ms x noncoherent, 333 Hz bins (screen: a quiet look's
+        Doppler windows and columns, acquisition.acquire)."""
         a = self.cfg["acquisition"]
         n = int(round(self.fs_hz * 1e-3)) * 2 * noncoherent
         return acquire(window[:n], self.fs_hz, prns, DopplerGrid(center_hz, span_hz, 333.0),
                        self.if_hz, 2, noncoherent, a["pfa"], max(EXAMINE_MAX_PEAKS, a["max_peaks"]),
-                       excise=True)   # a tone is no satellite, and no spoofer either
+                       excise=True, **screen)   # a tone is no satellite, and no spoofer either
+
+    def _around_last(self, prns) -> dict[int, tuple[float, float]]:
+        """A quiet look's Doppler window of each PRN the last look saw (QUIET_SPAN_HZ about its Doppler then)."""
+        last = {prn: self._last_cafs[prn].best for prn in prns if prn in self._last_cafs}
+        return {prn: (p.doppler_hz - QUIET_SPAN_HZ, p.doppler_hz + QUIET_SPAN_HZ) for prn, p in last.items() if p}
 
     def absent_now(self) -> frozenset[int]:
         """The PRNs the latest full search (every PRN, 20-40 ms: more sensitive than the chain's) found nothing of,
@@ -249,10 +262,14 @@ class SpoofGuard:
         if full:
             self._next_full = self._seen + int(self.d["full_search_every_s"] * self.fs_hz)
         quiet = self._quiet()
-        cafs = self._acquire(x, prns, 0.0, self.cfg["acquisition"]["doppler_max_hz"],
-                             QUIET_NONCOHERENT if quiet else EXAMINE_NONCOHERENT)
+        span_hz = self.cfg["acquisition"]["doppler_max_hz"]
+        if quiet:   # a screen
+            cafs = self._acquire(x, prns, 0.0, span_hz, QUIET_NONCOHERENT,
+                                 windows_hz=None if full else self._around_last(prns), most_columns=QUIET_COLUMNS)
+        else:
+            cafs = self._acquire(x, prns, 0.0, span_hz, EXAMINE_NONCOHERENT)
         if quiet and self._worth_a_full_look(cafs):
-            cafs = self._acquire(x, prns, 0.0, self.cfg["acquisition"]["doppler_max_hz"])
+            cafs = self._acquire(x, prns, 0.0, span_hz, EXAMINE_NONCOHERENT)
         if full:
             self.absent_prns = frozenset(p for p, c in cafs.items() if c.best is None)
             self.sky_interference = (next(iter(cafs.values())).interference, t_s)

@@ -93,16 +93,17 @@ def is_cross_correlation(doppler_hz: float, cn0_dbhz: float, stronger: Iterable[
 MAX_CAF_COLUMNS = 4096    # code phases per CAF row: above 4.096 MSa/s the spectra keep the central 4.096 MHz
 
 
-def caf_columns(n_ms: int) -> int:
-    """Code phases per ms the CAF resolves: every sample up to MAX_CAF_COLUMNS, then a band-limited correlation
-    (the C/A code's power beyond +-2 MHz is under 5 %: a loss of 0.1 dB for a CAF 2.5x cheaper at 10 MSa/s)."""
-    return min(n_ms, MAX_CAF_COLUMNS)
+def caf_columns(n_ms: int, most: int = MAX_CAF_COLUMNS) -> int:
+    """Code phases per ms the CAF resolves: every sample up to `most`, then a band-limited correlation (the C/A
+    code's power beyond +-2 MHz is under 5 %: a loss of 0.1 dB for a CAF 2.5x cheaper at 10 MSa/s)."""
+    return min(n_ms, most)
 
 
-def _kept_bins(n_ms: int) -> np.ndarray:
+def _kept_bins(n_ms: int, most: int = MAX_CAF_COLUMNS) -> np.ndarray:
     """FFT bins (of a 1 ms block, 1 kHz apart) inside the CAF's band, in inverse-FFT order."""
-    half = caf_columns(n_ms) // 2
-    return np.r_[0:caf_columns(n_ms) - half, n_ms - half:n_ms]
+    n_cols = caf_columns(n_ms, most)
+    half = n_cols // 2
+    return np.r_[0:n_cols - half, n_ms - half:n_ms]
 
 
 # Codes no satellite transmits (keys below 1): their CAFs hold everything in a block that is not a satellite.
@@ -114,11 +115,11 @@ def _code(key: int) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=64)
-def _local_replica_fft(key: int, n: int, fs_hz: float) -> np.ndarray:
+def _local_replica_fft(key: int, n: int, fs_hz: float, most: int = MAX_CAF_COLUMNS) -> np.ndarray:
     """The sampled code's spectrum in the CAF's band (cached: every look of every examination asks for the same);
     key is a PRN, or one of REFERENCE_KEYS."""
     chips = np.floor(np.arange(n) * CA_CHIP_RATE_HZ / fs_hz).astype(np.int64) % CA_CODE_LENGTH_CHIPS
-    spectrum = scipy.fft.fft(_code(key)[chips].astype(np.complex64))[_kept_bins(n)]
+    spectrum = scipy.fft.fft(_code(key)[chips].astype(np.complex64))[_kept_bins(n, most)]
     spectrum.flags.writeable = False
     return spectrum
 
@@ -129,7 +130,7 @@ def _whole_ms(fs_hz: float, n_ms: int) -> bool:
 
 
 def _wiped_spectra(x: np.ndarray, fs_hz: float, if_hz: float, dopplers: np.ndarray, n_ms: int, coherent_ms: int,
-                   noncoherent: int) -> np.ndarray:
+                   noncoherent: int, most: int = MAX_CAF_COLUMNS) -> np.ndarray:
     """conj(spectrum) of each coherent sum of 1 ms blocks after each Doppler's wipe-off: (Doppler, look, bin).
 
     When a block is exactly 1 ms of samples, a Doppler k kHz away turns each block's carrier by whole cycles, and
@@ -137,7 +138,7 @@ def _wiped_spectra(x: np.ndarray, fs_hz: float, if_hz: float, dopplers: np.ndarr
     (3 for 333 Hz bins) instead of one per Doppler bin. The coherent sum of a replica's correlations is the
     correlation of the summed spectra (the transform is linear).
     """
-    kept = _kept_bins(n_ms)
+    kept = _kept_bins(n_ms, most)
     spectra = scratch("acquisition spectra", (dopplers.size, noncoherent, kept.size), np.complex64)
     t_block = np.arange(n_ms) / fs_hz
     t_starts = np.arange(coherent_ms * noncoherent) * n_ms / fs_hz
@@ -241,8 +242,13 @@ def noncoherent_power(coh):
 def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: DopplerGrid = DopplerGrid(),
             if_hz: float = 0.0, coherent_ms: int = 1, noncoherent: int = 1, pfa: float = 1e-3,
             max_peaks: int = 8, excise: bool = False,
-            tail_threshold: bool = False) -> dict[int, Caf]:
+            tail_threshold: bool = False, windows_hz: dict[int, tuple[float, float]] | None = None,
+            most_columns: int = MAX_CAF_COLUMNS) -> dict[int, Caf]:
     """Search each PRN over the Doppler grid and every code phase.
+
+    windows_hz: PRN -> (lowest, highest) Doppler: that PRN's search keeps only the grid's rows inside (a look around
+    a signal known to be there costs a quarter of one over every Doppler); the threshold stays the whole grid's.
+    most_columns: the CAF's code phases per ms at most (caf_columns; 2048 keeps the C/A main lobe: a screen).
 
     Uses coherent_ms * noncoherent ms of samples from the start; with `excise`, DC and narrowband lines are
     excised first (`interference.excise_narrowband`), and when there were any, the threshold is at least the tail
@@ -266,20 +272,21 @@ def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: Dopple
         x, interference = excise_narrowband(x, fs_hz, if_hz, n_ms)
     if _whole_ms(fs_hz, n_ms):
         grid = grid.khz_periodic()
-    dopplers = grid.values_hz()
-    n_cols = caf_columns(n_ms)
+    all_dopplers = grid.values_hz()
+    n_cols = caf_columns(n_ms, most_columns)
     code_chips = np.arange(n_cols) * CA_CODE_LENGTH_CHIPS / n_cols
-    thr_theory = _threshold(pfa, dopplers.size * n_cols, noncoherent)
-    pfa_cell = -np.expm1(np.log1p(-pfa) / (dopplers.size * n_cols))
+    thr_theory = _threshold(pfa, all_dopplers.size * n_cols, noncoherent)
+    pfa_cell = -np.expm1(np.log1p(-pfa) / (all_dopplers.size * n_cols))
     chi_median = chi2_median(2 * noncoherent) / (2 * noncoherent)
-    spectra = _wiped_spectra(x, fs_hz, if_hz, dopplers, n_ms, coherent_ms, noncoherent)
+    spectra = _wiped_spectra(x, fs_hz, if_hz, all_dopplers, n_ms, coherent_ms, noncoherent, most_columns)
     prns = list(prns)
     fft_workers = 1 if len(prns) > 1 else cores()   # several PRNs: one per thread
 
-    def power_of(key: int) -> np.ndarray:
-        """|R|^2 over the noise floor for one code."""
-        work = np.multiply(spectra, _local_replica_fft(key, n_ms, fs_hz), out=scratch("acquisition", spectra.shape,
-                                                                                      np.complex64))
+    def power_of(key: int, rows=slice(None)) -> np.ndarray:
+        """|R|^2 over the noise floor for one code (over the Doppler rows given)."""
+        wiped = spectra[rows]
+        work = np.multiply(wiped, _local_replica_fft(key, n_ms, fs_hz, most_columns), out=scratch("acquisition", wiped.shape,
+                                                                                   np.complex64))
         coh = scipy.fft.ifft(work, axis=2, overwrite_x=True, workers=fft_workers)   # in place
         raw = noncoherent_power(coh)
         # the noise floor from every MEDIAN_STRIDE-th code phase: the same median to a fraction of a percent
@@ -291,14 +298,20 @@ def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: Dopple
 
     thr_floor = thr_theory
     if interference.jamming:   # nothing under it is a satellite: no search
-        return {prn: Caf(prn, dopplers, code_chips, None, np.inf, coherent_ms * CA_CODE_PERIOD_S, (), 0.0,
+        return {prn: Caf(prn, all_dopplers, code_chips, None, np.inf, coherent_ms * CA_CODE_PERIOD_S, (), 0.0,
                          interference) for prn in prns}
     if interference.present:
         references = run_each(power_of, list(REFERENCE_KEYS))
         thr_floor = max(thr_floor, _tail_level(np.concatenate([r.ravel() for r in references]), pfa_cell))
 
     def caf_of(prn: int) -> Caf:
-        power = power_of(prn)
+        rows, dopplers = slice(None), all_dopplers
+        if windows_hz and prn in windows_hz:
+            lo, hi = windows_hz[prn]
+            inside = np.nonzero((all_dopplers >= lo) & (all_dopplers <= hi))[0]
+            if inside.size:
+                rows, dopplers = slice(inside[0], inside[-1] + 1), all_dopplers[inside[0]:inside[-1] + 1]
+        power = power_of(prn, rows)
         thr = thr_floor
         if tail_threshold:
             thr = max(thr, _empirical_threshold(power, pfa_cell, dopplers, coherent_ms * CA_CODE_PERIOD_S))
