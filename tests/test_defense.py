@@ -82,6 +82,30 @@ def test_fast_kernels_equal_their_references():
         assert power[i] == pytest.approx(np.mean(np.abs(x[seg]) ** 2), rel=1e-5)
 
 
+def test_a_subtraction_split_between_threads_equals_one_pass():
+    """The canceller's stage subtracts its replicas on every core, each thread over its own span of the buffer: the
+    result is the one pass's, sample for sample (a block cut by a span's edge keeps its own grid of sub-blocks, so
+    both parts read the same replica), and a block reaching into the buffer from before it is cancelled alike."""
+    from semperfi.defense.canceller import _spans
+    rng = np.random.default_rng(5)
+    x = (rng.standard_normal(12000) + 1j * rng.standard_normal(12000)).astype(np.complex64)
+    step = 0.5115 * (1 + 2e-6)
+    blocks = np.array([[-700.0 + 2000.0 * k, 2000.0, 0.4, step, 0.25 + 0.0007 * 2000 * k, 0.0007] for k in range(7)])
+    amps = rng.standard_normal(7) + 1j * rng.standard_normal(7)
+    bank = code_bank(5, FS)
+    whole = x.copy()
+    subtract_replicas(whole, 0, blocks, amps, bank)
+    for parts in (2, 3, 7):
+        split = x.copy()
+        for a, b in _spans(split.size, parts):
+            subtract_replicas(split[a:b], a, blocks, amps, bank)
+        assert np.array_equal(split, whole), parts
+    edge = near_chip_edge(12000, 0, blocks)
+    ref = replicas_reference(12000, 0, blocks, amps, 5)
+    assert np.max(np.abs(x - ref - whole)[~edge]) < 1e-4
+    assert [b - a for a, b in _spans(10, 3)] == [3, 3, 4] and _spans(0, 2) == []
+
+
 def near_chip_edge(n_samples, base_sample, blocks, offset_chips=0.0):
     """Samples whose exact code phase lies within a bank quantum of a chip boundary."""
     from semperfi.receiver.correlator import QUANTUM_CHIPS

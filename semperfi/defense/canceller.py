@@ -13,7 +13,7 @@ import numpy as np
 from numba import njit
 
 from ..gps import CA_CODE_LENGTH_CHIPS, ca_code, chips_apart, chips_offset
-from ..receiver import (Channel, CodeBank, DopplerGrid, LoopConfig, NEXT_SAMPLE, Peak, acquire, fill_lanes,
+from ..receiver import (Channel, CodeBank, DopplerGrid, LoopConfig, NEXT_SAMPLE, Peak, acquire, cores, fill_lanes,
                         initial_state, lane_buffer, replica, run_each, sub_block_samples)
 from .twopath_track import TwoPaths, bank_lags, code_correlation, correlator_bank, fit_two_paths
 
@@ -31,22 +31,26 @@ def _subtract_kernel(x, base_sample, blocks, amplitudes, rows, first, bank_step,
         lo, hi = max(0, -start), min(n, x.size - start)
         s_max = sub_block_samples(step, bank_step)
         fill_lanes(lanes, pstep, s_max, 1.0)
-        k0 = lo
-        while k0 < hi:
-            s = min(s_max, hi - k0)
-            rot = a * np.exp(2j * np.pi * (ph + k0 * pstep))
+        # sub-blocks on the block's own grid of s_max samples, each read whole from the bank: a block cut by the
+        # end of x, or by a split of x between threads, gets the same replica in each part as in one pass
+        g0 = lo - lo % s_max
+        while g0 < hi:
+            s = min(s_max, n - g0)
+            rot = a * np.exp(2j * np.pi * (ph + g0 * pstep))
             c0r, c0i = np.float32(rot.real), np.float32(rot.imag)
-            code = replica(rows, first, bank_step, cp, step, k0, s)
-            xs = x[start + k0:start + k0 + s]
-            for j in range(s):
-                ln = lanes[j]
+            j0, j1 = max(lo, g0) - g0, min(hi, g0 + s) - g0
+            code = replica(rows, first, bank_step, cp, step, g0, s)[j0:j1]
+            ls = lanes[j0:j1]
+            xs = x[start + g0 + j0:start + g0 + j1]
+            for j in range(j1 - j0):
+                ln = ls[j]
                 c = np.float32(code[j])
                 vr = c * (c0r * ln.real - c0i * ln.imag)
                 if both_images:
                     xs[j] -= 2.0 * vr
                 else:
                     xs[j] -= complex(vr, c * (c0r * ln.imag + c0i * ln.real))
-            k0 += s
+            g0 += s
 
 
 @njit(cache=True, nogil=True, fastmath=True)
@@ -286,22 +290,29 @@ class AdversaryTrack:
         return self.legit_offset_chips is not None and abs(self.legit_offset_chips) < JOINT_WITHIN_CHIPS
 
     def apply(self, work: np.ndarray, base_sample: int) -> None:
-        """The cancelling half: subtract what track() measured from `work`.
+        """The cancelling half: subtract what track() measured from `work` (prepare, subtract, measure)."""
+        planned = self.prepare(work, base_sample)
+        if planned is not None:
+            subtract_replicas(work, base_sample, *planned, self.channel.bank, self.cfg.real_samples)
+            self.measure(work, base_sample, planned)
+
+    def prepare(self, work: np.ndarray, base_sample: int) -> tuple | None:
+        """The replicas track() measured, as (blocks, amplitudes) to subtract, or None while the loops settle.
 
         Nothing is subtracted while the loops settle; those samples are held back (hold_from) and, once the
-        loops have settled, cancelled with the settled replica extended backwards in time.
+        loops have settled, cancelled here with the settled replica extended backwards in time.
         """
         first_ms, prompts, blocks = self._tracked
         if prompts.size == 0:
-            return
+            return None
         if self.hold_from is None and not self.settled:
             self.hold_from = float(blocks[0, 0])
         settled = first_ms + np.arange(prompts.size) >= self.cfg.pull_in_ms
         if not settled.any():
-            return
+            return None
         i0 = int(np.argmax(settled))
         blocks, alphas = blocks[i0:], prompts[i0:] / blocks[i0:, 1]   # least squares: unit-modulus replica
-        legit = None if self._legit_est is None else self._legit_est[i0:]
+        self._legit_i0 = i0
         if not self.settled:
             self._ref = alphas[0]
         est, self._ref = decision_smooth(alphas, self._ref, self._lam)
@@ -309,8 +320,12 @@ class AdversaryTrack:
             self.settled = True
             self._backfill(work, base_sample, blocks[0], est[0])
             self.hold_from = None
-        subtract_replicas(work, base_sample, blocks, est, self.channel.bank, self.cfg.real_samples)
-        self._measure(work, base_sample, blocks, est, legit)
+        return blocks, est
+
+    def measure(self, work: np.ndarray, base_sample: int, planned: tuple) -> None:
+        """What the subtraction of prepare()'s replicas left (after it)."""
+        legit = None if self._legit_est is None else self._legit_est[self._legit_i0:]
+        self._measure(work, base_sample, *planned, legit)
 
     def _backfill(self, work: np.ndarray, base_sample: int, settled_block: np.ndarray, settled_est: complex) -> None:
         """Cancel the held samples [hold_from, first settled block) with the settled replica run backwards."""
@@ -365,6 +380,12 @@ class AdversaryTrack:
             self._acc_n = 0
 
 
+def _spans(n: int, parts: int) -> list[tuple[int, int]]:
+    """[0, n) cut into `parts` consecutive spans (the threads' shares of a buffer)."""
+    edges = np.linspace(0, n, max(1, parts) + 1).astype(np.int64)
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+
+
 @dataclass
 class CancellerStage:
     """One SIC iteration as a streaming filter: samples in, the same samples less its tracks' replicas out."""
@@ -394,8 +415,20 @@ class CancellerStage:
         self._work = np.concatenate([self._work, chunk])
         tracks = list(self.tracks.items())
         run_each(lambda item: item[1].track(self._raw, self.base), tracks)
-        for prn, tr in tracks:          # subtracting writes to one buffer: in order
-            tr.apply(self._work, self.base)
+        planned = [(tr, tr.prepare(self._work, self.base)) for _, tr in tracks]
+        planned = [(tr, p) for tr, p in planned if p is not None]
+        work, base = self._work, self.base
+
+        def subtract(part: tuple[int, int]) -> None:
+            # every track's replicas over one span of samples, in the tracks' order: each sample is computed as by
+            # one thread over the whole buffer
+            a, b = part
+            for tr, (blocks, est) in planned:
+                subtract_replicas(work[a:b], base + a, blocks, est, tr.channel.bank, tr.cfg.real_samples)
+        run_each(subtract, _spans(work.size, cores()))
+        for tr, p in planned:
+            tr.measure(work, base, p)
+        for prn, tr in tracks:
             if not tr.channel.locked:   # the spoofer went away (or was never there)
                 del self.tracks[prn]
         done = min([int(tr.next_sample if tr.hold_from is None else tr.hold_from) for tr in self.tracks.values()]

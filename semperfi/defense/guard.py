@@ -219,7 +219,7 @@ class SpoofGuard:
         n = int(round(self.fs_hz * 1e-3)) * 2 * noncoherent
         return acquire(window[:n], self.fs_hz, prns, DopplerGrid(center_hz, span_hz, 333.0),
                        self.if_hz, 2, noncoherent, a["pfa"], max(EXAMINE_MAX_PEAKS, a["max_peaks"]),
-                       excise=True, **screen)   # a tone is no satellite, and no spoofer either
+                       excise=True, keep_power=False, **screen)   # a tone is no satellite, nor a spoofer
 
     def _around_last(self, prns) -> dict[int, tuple[float, float]]:
         """A quiet look's Doppler window of each PRN the last look saw (QUIET_SPAN_HZ about its Doppler then)."""
@@ -262,13 +262,15 @@ class SpoofGuard:
         if full:
             self._next_full = self._seen + int(self.d["full_search_every_s"] * self.fs_hz)
         quiet = self._quiet()
+        # nothing seen, or an attack dealt with and nothing waiting: a screen, and a full look at what it sees
+        screen = quiet or self._settled()
         span_hz = self.cfg["acquisition"]["doppler_max_hz"]
-        if quiet:   # a screen
+        if screen:
             cafs = self._acquire(x, prns, 0.0, span_hz, QUIET_NONCOHERENT,
                                  windows_hz=None if full else self._around_last(prns), most_columns=QUIET_COLUMNS)
         else:
             cafs = self._acquire(x, prns, 0.0, span_hz, EXAMINE_NONCOHERENT)
-        if quiet and self._worth_a_full_look(cafs):
+        if screen and self._worth_a_full_look(cafs):
             cafs = self._acquire(x, prns, 0.0, span_hz, EXAMINE_NONCOHERENT)
         if full:
             self.absent_prns = frozenset(p for p, c in cafs.items() if c.best is None)

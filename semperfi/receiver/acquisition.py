@@ -61,7 +61,8 @@ class Caf:
     prn: int
     doppler_hz: np.ndarray
     code_phase_chips: np.ndarray
-    power: np.ndarray | None  # mean over non-coherent sums of |R|^2 / sigma^2; None where nothing was detected
+    power: np.ndarray | None  # mean over non-coherent sums of |R|^2 / sigma^2; None where nothing was detected (or
+                              # not asked for)
     threshold: float          # detection threshold on power
     coherent_s: float
     peaks: tuple[Peak, ...]
@@ -224,6 +225,9 @@ def find_peaks(power: np.ndarray, threshold: float, max_peaks: int) -> list[tupl
 
 
 MEDIAN_STRIDE = 4
+# Doppler rows correlated at once: each thread's buffer is this many rows of every look, not the whole grid (37 rows
+# of 2 ms x 20 at 10 MSa/s: 24 MB a thread)
+ROWS_AT_ONCE = 8
 
 
 @njit(cache=True, nogil=True)
@@ -243,12 +247,13 @@ def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: Dopple
             if_hz: float = 0.0, coherent_ms: int = 1, noncoherent: int = 1, pfa: float = 1e-3,
             max_peaks: int = 8, excise: bool = False,
             tail_threshold: bool = False, windows_hz: dict[int, tuple[float, float]] | None = None,
-            most_columns: int = MAX_CAF_COLUMNS) -> dict[int, Caf]:
+            most_columns: int = MAX_CAF_COLUMNS, keep_power: bool = True) -> dict[int, Caf]:
     """Search each PRN over the Doppler grid and every code phase.
 
     windows_hz: PRN -> (lowest, highest) Doppler: that PRN's search keeps only the grid's rows inside (a look around
     a signal known to be there costs a quarter of one over every Doppler); the threshold stays the whole grid's.
     most_columns: the CAF's code phases per ms at most (caf_columns; 2048 keeps the C/A main lobe: a screen).
+    keep_power: a CAF with peaks keeps its |R|^2 (for plots); a caller that only reads peaks says False.
 
     Uses coherent_ms * noncoherent ms of samples from the start; with `excise`, DC and narrowband lines are
     excised first (`interference.excise_narrowband`), and when there were any, the threshold is at least the tail
@@ -285,10 +290,13 @@ def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: Dopple
     def power_of(key: int, rows=slice(None)) -> np.ndarray:
         """|R|^2 over the noise floor for one code (over the Doppler rows given)."""
         wiped = spectra[rows]
-        work = np.multiply(wiped, _local_replica_fft(key, n_ms, fs_hz, most_columns), out=scratch("acquisition", wiped.shape,
-                                                                                   np.complex64))
-        coh = scipy.fft.ifft(work, axis=2, overwrite_x=True, workers=fft_workers)   # in place
-        raw = noncoherent_power(coh)
+        code = _local_replica_fft(key, n_ms, fs_hz, most_columns)
+        raw = np.empty(wiped.shape[::2], dtype=np.float32)
+        for r in range(0, wiped.shape[0], ROWS_AT_ONCE):   # a few rows' correlations at a time: bounded memory
+            part = wiped[r:r + ROWS_AT_ONCE]
+            work = np.multiply(part, code, out=scratch("acquisition", part.shape, np.complex64))
+            raw[r:r + part.shape[0]] = noncoherent_power(scipy.fft.ifft(work, axis=2, overwrite_x=True,
+                                                                        workers=fft_workers))
         # the noise floor from every MEDIAN_STRIDE-th code phase: the same median to a fraction of a percent
         sample = raw[:, ::MEDIAN_STRIDE]
         sigma2 = (np.median(sample, axis=1, keepdims=True) if tail_threshold else np.median(sample)) / chi_median
@@ -333,7 +341,8 @@ def acquire(samples: np.ndarray, fs_hz: float, prns: Iterable[int], grid: Dopple
         ratio2 = second_peak_ratio(power, *np.unravel_index(int(np.argmax(power)), power.shape),
                                    n_cols / CA_CODE_PERIOD_S)
         # 32 PRNs' CAFs at 5 MSa/s would hold 24 MB: only the detections keep theirs (for plots)
-        return Caf(prn, dopplers, code_chips, power if peaks else None, thr, coherent_ms * CA_CODE_PERIOD_S,
-                   tuple(peaks), ratio2, interference, float(np.mean(power)))
+        kept = power if peaks and keep_power else None
+        return Caf(prn, dopplers, code_chips, kept, thr, coherent_ms * CA_CODE_PERIOD_S, tuple(peaks), ratio2,
+                   interference, float(np.mean(power)))
 
     return dict(zip(prns, run_each(caf_of, prns)))
