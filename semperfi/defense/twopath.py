@@ -66,9 +66,16 @@ def _profile_kernel(samples, block_carrier, carrier, code_phase_chips, chips_per
     for b in range(n_blocks):
         c_re[:] = 0.0
         c_im[:] = 0.0
+        turn = block_carrier[b]
+        # whole code periods taken off by subtraction instead of a remainder per sample: an integer times the period
+        # off the position is exact in floating point, as the remainder is
+        wraps = np.floor((code_phase_chips + b * k * chips_per_sample) / CA_CODE_LENGTH_CHIPS)
         for t in range(k):
-            w = samples[b * k + t] * carrier[t] * block_carrier[b]
-            pos = (code_phase_chips + (b * k + t) * chips_per_sample) % CA_CODE_LENGTH_CHIPS
+            w = samples[b * k + t] * carrier[t] * turn
+            pos = (code_phase_chips + (b * k + t) * chips_per_sample) - wraps * CA_CODE_LENGTH_CHIPS
+            if pos >= CA_CODE_LENGTH_CHIPS:
+                wraps += 1.0
+                pos -= CA_CODE_LENGTH_CHIPS
             fine = min(np.int64(pos * sub), n_sub - 1)
             c_re[fine + 1] += w.real
             c_im[fine + 1] += w.imag
