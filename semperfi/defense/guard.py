@@ -262,8 +262,11 @@ class SpoofGuard:
         if full:
             self._next_full = self._seen + int(self.d["full_search_every_s"] * self.fs_hz)
         quiet = self._quiet()
-        # nothing seen, or an attack dealt with and nothing waiting: a screen, and a full look at what it sees
-        screen = quiet or self._settled()
+        # nothing seen (past the start-up's first look, which sees every PRN in full), or an attack dealt with and
+        # nothing waiting: a screen, and a full look at what it sees
+        calm = not (self.detector.sensitive or self.detector.pending()) and bool(
+            self.present_prns or self._seen >= self._startup_samples)
+        screen = calm or self._settled()
         span_hz = self.cfg["acquisition"]["doppler_max_hz"]
         if screen:
             cafs = self._acquire(x, prns, 0.0, span_hz, QUIET_NONCOHERENT,
