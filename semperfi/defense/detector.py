@@ -164,11 +164,21 @@ def _cross_power_kernel(code_a, chip0_a, rate_a, code_b, chip0_b, rate_b, dphase
     carrier is a phasor turned sample by sample from 1 in each block (no exponential per sample)."""
     total = 0.0
     dc, ds = np.cos(dphase), np.sin(dphase)
+    # whole code periods taken off the chip indices as they pass (a chip or less a sample), not a remainder each
+    wrap_a = (np.int64(np.floor(chip0_a)) // 1023) * 1023
+    wrap_b = (np.int64(np.floor(chip0_b)) // 1023) * 1023
     for b in range(n // k):
         re, im, c, s = 0.0, 0.0, 1.0, 0.0
         for t in range(b * k, (b + 1) * k):
-            v = (code_a[np.int64(np.floor(chip0_a + t * rate_a)) % 1023]
-                 * code_b[np.int64(np.floor(chip0_b + t * rate_b)) % 1023])
+            ia = np.int64(np.floor(chip0_a + t * rate_a)) - wrap_a
+            while ia >= 1023:
+                wrap_a += 1023
+                ia -= 1023
+            ib = np.int64(np.floor(chip0_b + t * rate_b)) - wrap_b
+            while ib >= 1023:
+                wrap_b += 1023
+                ib -= 1023
+            v = code_a[ia] * code_b[ib]
             re += v * c
             im += v * s
             c, s = c * dc - s * ds, c * ds + s * dc
