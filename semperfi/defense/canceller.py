@@ -289,15 +289,9 @@ class AdversaryTrack:
     def _joint(self) -> bool:
         return self.legit_offset_chips is not None and abs(self.legit_offset_chips) < JOINT_WITHIN_CHIPS
 
-    def apply(self, work: np.ndarray, base_sample: int) -> None:
-        """The cancelling half: subtract what track() measured from `work` (prepare, subtract, measure)."""
-        planned = self.prepare(work, base_sample)
-        if planned is not None:
-            subtract_replicas(work, base_sample, *planned, self.channel.bank, self.cfg.real_samples)
-            self.measure(work, base_sample, planned)
-
     def prepare(self, work: np.ndarray, base_sample: int) -> tuple | None:
-        """The replicas track() measured, as (blocks, amplitudes) to subtract, or None while the loops settle.
+        """The cancelling half (its stage subtracts, then measure()): the replicas track() measured, as (blocks,
+        amplitudes) to subtract from `work`, or None while the loops settle.
 
         Nothing is subtracted while the loops settle; those samples are held back (hold_from) and, once the
         loops have settled, cancelled here with the settled replica extended backwards in time.
