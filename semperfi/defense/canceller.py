@@ -183,6 +183,7 @@ def rotation_per_period(values: np.ndarray, lag: int = ROTATION_LAG_PERIODS) -> 
 # autocorrelation at their offset): both signals are then followed jointly by the two-path tracker.
 JOINT_WITHIN_CHIPS = 1.2
 TWIN_GAIN = 0.5                   # fraction of each buffer's measured twin offset error applied
+REPORT_FIT_EVERY = 4              # buffers: the twin fitted again for the attenuation report (report only)
 # A legitimate signal within BIASED_WITHIN_CHIPS of a spoofer BIASED_TWIN_DB stronger keeps, after cancellation, the
 # spoofer's residual (some 25 dB down) within 15 dB of itself, and the closer the twin the worse the spoofer's own
 # estimate: a multipath at under a chip. Measured on GPS-SDR-SIM at +15 dB, 500 m: twins 0.4-0.5 chip away biased
@@ -227,6 +228,8 @@ class AdversaryTrack:
         self._acc_signal = self._acc_residual = self._acc_noise = 0.0
         self._acc_n = 0
         self._measure_phase = 0
+        self._report_fits = 0          # buffers with a twin fitted (one in REPORT_FIT_EVERY is fitted again)
+        self._report_skipped = False   # this buffer's twin was not fitted again: nothing measured
         self.attenuation_db: list[tuple[float, bool]] = []   # per ~1 s window: (dB, only a lower bound)
         self.settled = False
         self.hold_from: float | None = None   # while the loops settle, samples from here on are held back
@@ -243,21 +246,29 @@ class AdversaryTrack:
         blocks = self.channel.last_blocks
         self._legit_est = None   # this buffer's, or none (a stale one would not match its blocks)
         paths = self._two_paths(tracked, base_sample, blocks) if before is not None and prompts.size else None
+        self._report_skipped = False
         if paths is not None:
             # the twin within a chip pulls the spoofer's early-late balance: take it out of a copy of the samples and
             # track the same samples again from the same loop state
-            without_legit = np.array(tracked, copy=True)
-            subtract_replicas(without_legit, base_sample, blocks, self._legit_amplitudes(paths.twin_amplitudes),
-                              self.channel.bank, offset_chips=paths.twin_offset_chips)
+            # (a copy from where this buffer's tracking began: samples held back before it are not read again)
+            start = max(0, int(np.floor(float(before.st[NEXT_SAMPLE]))) - base_sample - 1)
+            without_legit = np.array(tracked[start:], copy=True)
+            subtract_replicas(without_legit, base_sample + start, blocks,
+                              self._legit_amplitudes(paths.twin_amplitudes), self.channel.bank,
+                              offset_chips=paths.twin_offset_chips)
             self.channel = before
-            prompts, _ = self.channel.process(without_legit, base_sample)
+            prompts, _ = self.channel.process(without_legit, base_sample + start)
             blocks = self.channel.last_blocks
-            # both delays again against the spoofer's unpulled replica: the twin's offset from the spoofer itself
-            paths = self._two_paths(tracked, base_sample, blocks)
-            if paths is not None:
-                self._legit_est = self._legit_amplitudes(paths.twin_amplitudes, update=False)
-                self._twin_lag = paths.twin_offset_chips
-                self.legit_offset_chips += TWIN_GAIN * (paths.separation_chips - self.legit_offset_chips)
+            # the separation is the same seen from either replica (the fit places both paths)
+            self.legit_offset_chips += TWIN_GAIN * (paths.separation_chips - self.legit_offset_chips)
+            # the report needs the twin against the spoofer's unpulled replica: a second bank and fit, in one buffer
+            # of REPORT_FIT_EVERY (the rest are not measured)
+            self._report_fits += 1
+            again = self._two_paths(tracked, base_sample, blocks) if self._report_fits % REPORT_FIT_EVERY == 0 else None
+            self._report_skipped = again is None
+            if again is not None:
+                self._legit_est = self._legit_amplitudes(again.twin_amplitudes, update=False)
+                self._twin_lag = again.twin_offset_chips
         self._tracked = (first_ms, prompts, blocks)
 
     def _two_paths(self, x: np.ndarray, base_sample: int, blocks: np.ndarray) -> TwoPaths | None:
@@ -318,6 +329,8 @@ class AdversaryTrack:
 
     def measure(self, work: np.ndarray, base_sample: int, planned: tuple) -> None:
         """What the subtraction of prepare()'s replicas left (after it)."""
+        if self._report_skipped:
+            return
         legit = None if self._legit_est is None else self._legit_est[self._legit_i0:]
         self._measure(work, base_sample, *planned, legit)
 
@@ -408,7 +421,9 @@ class CancellerStage:
         self._raw = np.concatenate([self._raw, chunk])
         self._work = np.concatenate([self._work, chunk])
         tracks = list(self.tracks.items())
-        run_each(lambda item: item[1].track(self._raw, self.base), tracks)
+        # the longest first (a track with a twin within a chip fits two paths too): both threads end together
+        longest_first = sorted(tracks, key=lambda item: not item[1]._joint())
+        run_each(lambda item: item[1].track(self._raw, self.base), longest_first)
         planned = [(tr, tr.prepare(self._work, self.base)) for _, tr in tracks]
         planned = [(tr, p) for tr, p in planned if p is not None]
         work, base = self._work, self.base
