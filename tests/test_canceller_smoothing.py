@@ -5,7 +5,7 @@ the subtraction would carve it out of the legitimate signal (a bias of metres on
 import numpy as np
 import pytest
 
-from semperfi.defense.canceller import decision_smooth, rotation_per_period
+from semperfi.defense.canceller import decision_smooth, decision_smooth_reference, rotation_per_period
 
 LAM = 1.0 / 16                 # CancellerConfig.smoothing_ms
 PERIODS = 4000                 # 4 s of code periods
@@ -50,3 +50,16 @@ def test_without_a_turn_the_smoothing_is_unchanged():
     b, rb = decision_smooth(noisy, noisy[0], LAM, 1.0)
     np.testing.assert_array_equal(a, b)
     assert ra == rb
+
+
+@pytest.mark.parametrize("turn", [1.0, np.exp(0.005j)])
+def test_the_compiled_smoothing_equals_its_reference(turn):
+    """The kernel against the plain Python loop it compiles: the same estimates and reference, bit for bit (data
+    bits flipping, a reference started against the first period's sign, no periods at all)."""
+    _, noisy = _twin(2.0, snr_db=3.0)
+    fast, ref_fast = decision_smooth(noisy, -noisy[0], LAM, turn)
+    slow, ref_slow = decision_smooth_reference(noisy, -noisy[0], LAM, turn)
+    np.testing.assert_array_equal(fast, slow)
+    assert ref_fast == ref_slow
+    empty, ref = decision_smooth(noisy[:0], 0.5 + 0.5j, LAM, turn)
+    assert empty.size == 0 and ref == 0.5 + 0.5j

@@ -148,12 +148,13 @@ def refine_peak(samples: np.ndarray, fs_hz: float, if_hz: float, peak: Peak) -> 
     return near[0] if near else peak
 
 
-def decision_smooth(values: np.ndarray, ref: complex, lam: float, rotation: complex = 1.0
-                    ) -> tuple[np.ndarray, complex]:
+def decision_smooth_reference(values: np.ndarray, ref: complex, lam: float, rotation: complex = 1.0
+                              ) -> tuple[np.ndarray, complex]:
     """Decision-directed smoothing of per-period complex amplitudes: each period's data bit is its sign against the
     running reference, which follows the bit-stripped values with gain lam. A signal turning in the frame of the
     replica (a twin whose carrier is not the one tracked) turns the reference by `rotation` each period first, or
-    the smoothing would lag it. Returns the estimates (bits restored) and the reference after the last period."""
+    the smoothing would lag it. Returns the estimates (bits restored) and the reference after the last period.
+    (Plain Python: the reference of decision_smooth.)"""
     est = np.empty_like(values)
     for i, a in enumerate(values):
         ref = ref * rotation
@@ -161,6 +162,16 @@ def decision_smooth(values: np.ndarray, ref: complex, lam: float, rotation: comp
         ref = ref + lam * (a * bit - ref)
         est[i] = ref * bit
     return est, ref
+
+
+_smooth_kernel = njit(cache=True, nogil=True)(decision_smooth_reference)
+
+
+def decision_smooth(values: np.ndarray, ref: complex, lam: float, rotation: complex = 1.0
+                    ) -> tuple[np.ndarray, complex]:
+    """decision_smooth_reference compiled (a Python loop per code period of every track was a second a minute)."""
+    est, ref = _smooth_kernel(np.asarray(values, dtype=np.complex128), complex(ref), float(lam), complex(rotation))
+    return est, complex(ref)
 
 
 ROTATION_LAG_PERIODS = 10        # the twin's turn is measured over this many periods (unambiguous within +-25 Hz)
@@ -435,8 +446,7 @@ class CancellerStage:
             for tr, (blocks, est) in planned:
                 subtract_replicas(work[a:b], base + a, blocks, est, tr.channel.bank, tr.cfg.real_samples)
         run_each(subtract, _spans(work.size, cores()))
-        for tr, p in planned:
-            tr.measure(work, base, p)
+        run_each(lambda item: item[0].measure(work, base, item[1]), planned)   # each reads work, writes its own
         for prn, tr in tracks:
             if not tr.channel.locked:   # the spoofer went away (or was never there)
                 del self.tracks[prn]
