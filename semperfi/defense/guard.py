@@ -74,6 +74,40 @@ def _keep_last(kept: np.ndarray, new: np.ndarray, n: int) -> np.ndarray:
     return np.concatenate([kept[new.size - n:], new])
 
 
+class _Tail:
+    """The newest n samples of a stream, joined only when asked for: the deep looks' 100 ms window is a chunk's
+    length, so keeping it joined copied 8 MB a chunk at 10 MSa/s for a look that comes once a second. Keeps views
+    of what it is given (never written to afterwards: SpoofGuard.push)."""
+
+    def __init__(self, n: int):
+        self.n = n
+        self.clear()
+
+    def clear(self) -> None:
+        self._parts: list[np.ndarray] = []
+        self._total = 0
+        self._joined: np.ndarray | None = None
+
+    def push(self, new: np.ndarray) -> None:
+        if new.size == 0:
+            return
+        self._parts.append(new)
+        self._total += new.size
+        self._joined = None
+        while self._total - self._parts[0].size >= self.n:   # the oldest part is not needed for the last n
+            self._total -= self._parts.pop(0).size
+
+    @property
+    def size(self) -> int:
+        return min(self._total, self.n)
+
+    def array(self) -> np.ndarray:
+        if self._joined is None:
+            last = self._parts[-1] if self._parts else np.empty(0, dtype=np.complex64)
+            self._joined = last[-self.n:] if last.size >= self.n else np.concatenate(self._parts)[-self.n:]
+        return self._joined
+
+
 class SpoofGuard:
     def __init__(self, cfg: dict, fs_hz: float, if_hz: float = 0.0, events=None, on_cancel=None, on_release=None,
                  maneuver=None, nav_context=None, real_samples: bool = False, continuing=None,
@@ -98,7 +132,7 @@ class SpoofGuard:
         self._raw = np.empty(0, dtype=np.complex64)      # the newest raw samples, for examinations
         self._clean = np.empty(0, dtype=np.complex64)    # the newest cleaned samples, for verification
         self.deep_window = int(round(fs_hz * 1e-3)) * DEEP_COHERENT_MS * DEEP_NONCOHERENT
-        self._deep = np.empty(0, dtype=np.complex64)     # the newest cleaned samples, for the longer looks
+        self._deep = _Tail(self.deep_window)               # the newest cleaned samples, for the longer looks
         self._deep_under: frozenset = frozenset()        # the PRNs cancelled while they were cleaned
         self._deep_seen: dict[int, list[float]] = {}     # PRN -> offsets (chips) of the second peaks the last look saw
         self._seen = 0                                   # raw samples received
@@ -186,8 +220,9 @@ class SpoofGuard:
         if self.alarmed_prns:
             under = frozenset(self.canceller.prns)
             if under != self._deep_under:    # a look mixing two sets of cancellations would see a spoofer's edge
-                self._deep, self._deep_under = np.empty(0, dtype=np.complex64), under
-            self._deep = _keep_last(self._deep, cleaned, self.deep_window)
+                self._deep.clear()
+                self._deep_under = under
+            self._deep.push(cleaned)
         self._verify()
         return cleaned
 
@@ -330,7 +365,8 @@ class SpoofGuard:
         if not self.alarmed_prns or self._deep.size < self.deep_window:
             return
         first = self._cleaned - self._deep.size
-        looked, self._looked = self._looked, (self._deep, first)
+        window = self._deep.array()
+        looked, self._looked = self._looked, (window, first)
         a = self.cfg["acquisition"]
         for prn in sorted(self.present_prns - self.alarmed_prns - self.canceller.prns - set(self.awaiting)
                           - set(self.gave_up)):
@@ -338,7 +374,7 @@ class SpoofGuard:
             if caf is None or caf.best is None or auxiliary_peaks(caf, cafs, self.detector.cfg, self.fs_hz):
                 continue
             grid = DopplerGrid(caf.best.doppler_hz, DEEP_SPAN_HZ, DEEP_STEP_HZ)
-            deep = acquire(self._deep, self.fs_hz, [prn], grid, self.if_hz, DEEP_COHERENT_MS, DEEP_NONCOHERENT,
+            deep = acquire(window, self.fs_hz, [prn], grid, self.if_hz, DEEP_COHERENT_MS, DEEP_NONCOHERENT,
                            a["pfa"], EXAMINE_MAX_PEAKS, excise=True, tail_threshold=True)[prn]
             pairs = auxiliary_peaks(deep, {**in_units_of(deep, cafs), prn: deep}, self.detector.cfg, self.fs_hz,
                                     block_s=DEEP_CROSS_TALK_BLOCK_S)
