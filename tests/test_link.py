@@ -236,6 +236,55 @@ def test_a_flight_side_that_does_not_answer_the_alarm_is_told_once():
     assert maneuver.news() == []
 
 
+class _ScriptedFlightSide:
+    """A link end that says what the test queues (the flight side), and can be closed under the receiver."""
+    rejected = 0
+
+    def __init__(self):
+        self.closed, self.sent, self.queued = None, [], []
+
+    def send(self, kind, payload):
+        self.sent.append(kind)
+
+    def poll(self):
+        out, self.queued = self.queued, []
+        return out
+
+
+@pytest.mark.parametrize("how", ["maneuver_failed", "link_lost", "junk_reason"])
+def test_a_maneuver_the_flight_side_cannot_fly_fails_at_once(how):
+    """The closed loop on ArduCopter SITL: the EKF failsafe landed the vehicle mid-maneuver, the flight side gave up
+    and closed, and the receiver waited out TRACK_S (a minute without a trusted fix) for a track that could not
+    come. Told so, or with the link gone, the maneuver fails at that look and the waiting alarms are released."""
+    from semperfi.defense.maneuver_id import MAX_REASON_CHARS, LinkedManeuver
+    side = _ScriptedFlightSide()
+    maneuver = LinkedManeuver(side, 2e6)
+    maneuver.request(10.0, 7)
+    side.queued = [("maneuver_request", {"maneuver_id": "ab", "t_s": 10.2})]
+    assert maneuver.pending(10.5) and side.sent == ["alarm"]
+    assert not maneuver.due_to_end(12.0)
+    if how == "link_lost":
+        side.closed = "truncated: peer closed"
+    else:
+        why = "maneuver aborted: vehicle left GUIDED" if how == "maneuver_failed" else "x" * 10_000
+        side.queued = [("maneuver_failed", {"why": why})]
+    assert maneuver.due_to_end(13.0) and not maneuver.pending(13.0)   # at once, not at 10.5 + TRACK_S
+    news = dict(maneuver.news())
+    assert "maneuver_failed" in news and len(news["maneuver_failed"]["why"]) <= MAX_REASON_CHARS, news
+    assert {"maneuver_failed": "vehicle left GUIDED", "link_lost": "link is lost",
+            "junk_reason": "could not fly"}[how] in news["maneuver_failed"]["why"]
+
+
+def test_a_failure_before_the_maneuver_was_asked_for_is_ignored():
+    """A maneuver_failed frame out of turn (no alarm sent yet: a replayed or confused peer) fails nothing."""
+    from semperfi.defense.maneuver_id import LinkedManeuver
+    side = _ScriptedFlightSide()
+    maneuver = LinkedManeuver(side, 2e6, ready=lambda: False)
+    side.queued = [("maneuver_failed", {"why": 3})]
+    maneuver.request(10.0, 7)
+    assert maneuver.failed is None and maneuver.news() == []
+
+
 def test_every_read_has_a_deadline_a_silent_peer_is_gone_a_beating_one_stays(monkeypatch):
     """Issue 23: the link's reader waited forever on a peer that stayed connected and said nothing."""
     import time

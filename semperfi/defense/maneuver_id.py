@@ -20,6 +20,7 @@ from .identifier import INS_DRIFT_M, REQUIRED_SPREAD_M, ImuTrack, LineOfSight, P
 from .imu_track import find_maneuver
 
 MAX_CLOCK_S = 1e9                # a vehicle clock beyond this is not one (hostile input)
+MAX_REASON_CHARS = 200           # a failure's reason as kept (a peer's words, hostile input)
 SEPARATE_CHIPS = 1.5          # closer peaks share a tracking loop's discriminator
 FOLLOW_LOOP = LoopConfig(pull_in_ms=300, min_cn0_dbhz=20.0, lost_windows=10)
 HISTORY_EVERY_MS = 20         # one range sample per 20 ms is plenty for a 10-20 s maneuver
@@ -234,6 +235,11 @@ class LinkedManeuver(ManeuverIdentifier):
                 if isinstance(vehicle_s, (int, float)) and not isinstance(vehicle_s, bool) and \
                         math.isfinite(vehicle_s) and abs(vehicle_s) < MAX_CLOCK_S:
                     self.vehicle_minus_sample_s = float(vehicle_s) - t_s
+            elif kind == "maneuver_failed" and self.requested_s is not None and self.track is None \
+                    and self.failed is None:
+                why = payload.get("why")
+                self.failed = ("the flight side could not fly the maneuver"
+                               + (f": {why}" if isinstance(why, str) else ""))[:MAX_REASON_CHARS]
             elif kind == "maneuver_done" and self.accepted_s is not None and self.track is None:
                 try:
                     track = ImuTrack(*(np.asarray(payload[k], dtype=float)
@@ -248,7 +254,13 @@ class LinkedManeuver(ManeuverIdentifier):
                             0.0 < bound <= MAX_DRIFT_BOUND_M:
                         self.drift_bound_m = float(bound)
                 except (KeyError, TypeError, ValueError) as exc:
-                    self.failed = f"unusable IMU track ({exc})"[:200]
+                    self.failed = f"unusable IMU track ({exc})"[:MAX_REASON_CHARS]
+        closed = getattr(self.channel, "closed", None)
+        if self.failed is None and self.requested_s is not None and self.track is None and closed:
+            # no track can come back on a lost link: waiting out TRACK_S left a closed-loop takeover on ArduCopter
+            # SITL without a trusted fix for a minute after its flight side had given up
+            why = f"the flight side's link is lost before the maneuver's IMU track came back: {closed}"
+            self.failed = why[:MAX_REASON_CHARS]
         if self.failed is None and self.requested_s is not None:
             if self.accepted_s is None and t_s - self.requested_s > self.ACCEPT_S:
                 self.failed = "the flight side did not answer the alarm"

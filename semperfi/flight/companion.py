@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 from .deadreckoning import ins_error_bound_m
-from .link import LinkError, LinkPeer, alarm_lines_of_sight, alarm_required_spread_m
+from .link import MAX_WHY_CHARS, LinkError, LinkPeer, alarm_lines_of_sight, alarm_required_spread_m
 from .maneuver import ManeuverLimits, draw, spread_m, unit_ned
 from .mavlink_pilot import Pilot, PilotError
 
@@ -69,6 +69,7 @@ def serve(port: int, key: bytes, vehicle_url: str, report, host: str = "127.0.0.
                 result = pilot.fly(maneuver)
             except (PilotError, ValueError, RuntimeError) as exc:
                 report({"event": "maneuver_failed", "error": str(exc)})
+                peer.send("maneuver_failed", {"why": str(exc)[:MAX_WHY_CHARS]})   # it waits for no track now
                 break
             finally:
                 pilot.close()

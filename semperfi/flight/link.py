@@ -21,6 +21,8 @@ Types, in the order of one identification round:
                                              "east_m": [...], "down_m": [...], "drift_bound_m": float}
                                              (the IMU track, and how far from the flight it may end: the
                                              identifier's tolerance grows with it; absent: its own 2 m)
+    "maneuver_failed"   flight -> receiver  {"why": str}   (the flight side could not fly the maneuver asked for:
+                                             the receiver stops waiting for its track at once)
     "verdict"           receiver -> flight  {"maneuver_id": str, "adversarial": bool, "peaks": [...]}
     "heartbeat"         both ways           {}   (every HEARTBEAT_S: a peer silent for SILENT_S is gone)
 
@@ -48,10 +50,11 @@ MAX_FRAME_BYTES = 1 << 20
 MAX_SKEW_S = 5.0
 LOG_REJECTED_FIRST, LOG_REJECTED_EVERY = 5, 1000
 MAX_SEQ_STEP = 1_000_000     # frames a peer may skip at once (it sends a few a minute; a TCP link loses none)
-TYPES = {"hello", "alarm", "maneuver_request", "maneuver_done", "verdict", "heartbeat"}
+TYPES = {"hello", "alarm", "maneuver_request", "maneuver_done", "maneuver_failed", "verdict", "heartbeat"}
 HEARTBEAT_S = 1.0            # how often a LinkPeer says it is there
 SILENT_S = 5.0               # a peer that said nothing for this long is gone (hung, or the network is)
 MAX_LINES_OF_SIGHT = 32
+MAX_WHY_CHARS = 200          # a failure's reason, as sent
 MAX_REQUIRED_SPREAD_M = 50.0   # a maneuver under 50 m flown cannot spread further along a line of sight
 _MAC = 32
 log = logging.getLogger(__name__)
