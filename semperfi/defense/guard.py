@@ -65,19 +65,11 @@ ABSENT_MARGIN_S = 1.0  # a full search's absent PRNs stand this long past the ne
 EXAMINE_MAX_PEAKS = 16  # a strong spoofer's Doppler and code sidelobes are local maxima too: room for its twin
 
 
-def _keep_last(kept: np.ndarray, new: np.ndarray, n: int) -> np.ndarray:
-    """The last n samples of kept followed by new: a view of new's tail when new holds them all (a chunk is never
-    written to once pushed: SpoofGuard.push), else an array of their own. At 10 MSa/s a chunk holds more than a
-    look's window, and joining the two first copied 16 MB a chunk; copying the tail, 6 MB (0.5 s a minute)."""
-    if new.size >= n:
-        return new[-n:]
-    return np.concatenate([kept[new.size - n:], new])
-
-
 class _Tail:
-    """The newest n samples of a stream, joined only when asked for: the deep looks' 100 ms window is a chunk's
-    length, so keeping it joined copied 8 MB a chunk at 10 MSa/s for a look that comes once a second. Keeps views
-    of what it is given (never written to afterwards: SpoofGuard.push)."""
+    """The newest n samples of a stream, joined only when a look asks for them: a view of the last chunk's tail
+    when it holds them all, else the parts joined. Keeping a window joined at every chunk copied it each time (the
+    deep looks' 100 ms is a chunk's length: 8 MB a chunk at 10 MSa/s, for a look once a second). Keeps views of
+    what it is given, which are never written to afterwards (SpoofGuard.push)."""
 
     def __init__(self, n: int):
         self.n = n
@@ -129,8 +121,8 @@ class SpoofGuard:
         self.canceller = Canceller(fs_hz, if_hz, CancellerConfig(max_stages=self.d["max_iterations"],
                                                                  real_samples=real_samples))
         self.window = int(round(fs_hz * 1e-3)) * WINDOW_MS
-        self._raw = np.empty(0, dtype=np.complex64)      # the newest raw samples, for examinations
-        self._clean = np.empty(0, dtype=np.complex64)    # the newest cleaned samples, for verification
+        self._raw = _Tail(self.window)                   # the newest raw samples, for examinations
+        self._clean = _Tail(self.window)                 # the newest cleaned samples, for verification
         self.deep_window = int(round(fs_hz * 1e-3)) * DEEP_COHERENT_MS * DEEP_NONCOHERENT
         self._deep = _Tail(self.deep_window)               # the newest cleaned samples, for the longer looks
         self._deep_under: frozenset = frozenset()        # the PRNs cancelled while they were cleaned
@@ -194,7 +186,7 @@ class SpoofGuard:
         The guard keeps views of the chunk and of what it returns: neither may be written to afterwards."""
         chunk = np.asarray(chunk, dtype=np.complex64)
         self._seen += chunk.size
-        self._raw = _keep_last(self._raw, chunk, self.window)
+        self._raw.push(chunk)
         if self.maneuver is not None:
             self.maneuver.push(chunk)
             if self.maneuver.due_to_end(self._seen / self.fs_hz):
@@ -216,7 +208,7 @@ class SpoofGuard:
         cleaned = self.canceller.push(chunk)
         self._forget_lost(self._seen / self.fs_hz)
         self._cleaned += cleaned.size
-        self._clean = _keep_last(self._clean, cleaned, self.window)
+        self._clean.push(cleaned)
         if self.alarmed_prns:
             under = frozenset(self.canceller.prns)
             if under != self._deep_under:    # a look mixing two sets of cancellations would see a spoofer's edge
@@ -279,11 +271,11 @@ class SpoofGuard:
         first = self._cleaned - self._clean.size
         raw_first = self._seen - self.window
         if self.maneuver is not None and self.maneuver.due_to_start(raw_first / self.fs_hz):
-            return self._raw, raw_first
+            return self._raw.array(), raw_first
         if self.canceller.prns and self._clean.size >= self.window and first > self._last_look_first:
             self._last_look_first = first
-            return self._clean, first
-        return self._raw, raw_first
+            return self._clean.array(), first
+        return self._raw.array(), raw_first
 
     def _examine(self) -> None:
         x, first = self._look()
@@ -518,7 +510,7 @@ class SpoofGuard:
                 continue   # the receiver's own PRNs only: a strong attacker's cross-talk makes peaks on absent ones
             pairs = auxiliary_peaks(caf, cafs, self.detector.cfg, self.fs_hz) if prn in self.awaiting else []
             peaks[prn] = [pairs[0].main, pairs[0].auxiliary] if pairs else [caf.best]
-        self.maneuver.start(peaks, self._seen - self.window, self._raw)
+        self.maneuver.start(peaks, self._seen - self.window, self._raw.array())
         self._emit("maneuver_follow", (self._seen - self.window) / self.fs_hz, followers=len(self.maneuver.followers))
 
     def _identify(self, t_s: float) -> None:
@@ -531,7 +523,7 @@ class SpoofGuard:
             {"prn": v.prn, "peak": v.peak_id, "adversarial": v.adversarial, "decided": v.decided,
              "score": round(v.score, 2), "reason": v.reason} for v in ident.verdicts])
         now = self._seen - self.window
-        self._looked = (self._raw, now)
+        self._looked = (self._raw.array(), now)
         lone = {prn for prn, _ in ident.followers if prn not in self.awaiting and (prn, 1) not in ident.followers}
         for v in ident.verdicts:
             if v.decided and v.adversarial and v.prn in lone:
@@ -678,7 +670,7 @@ class SpoofGuard:
             # this PRN around the attacker's Doppler; the others as last examined, so that what is left can be told
             # from their cross-correlation
             cafs = dict(self._last_cafs)
-            cafs.update(self._acquire(self._clean, [prn], peak.doppler_hz, 2000.0))
+            cafs.update(self._acquire(self._clean.array(), [prn], peak.doppler_hz, 2000.0))
             caf, target, reason = cafs[prn], None, ""
             # a peak of the field of near-threshold maxima that the cancelled strong signals' residues raise, or
             # cross-talk, is no signal of this PRN's left
