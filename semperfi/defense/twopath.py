@@ -43,90 +43,115 @@ class TwoPathFit:
 PAD_CHIPS = 8
 
 
-@njit(cache=True, nogil=True, fastmath=True)
-def _profile_kernel(samples, block_carrier, carrier, code_phase_chips, chips_per_sample, sub, frac_sub, frac_of,
-                    shift_of, code_pad, n_blocks, k):
-    """y[i, b] = sum over block b of the wiped samples * code(position + frac_sub[frac_of[i]] / sub + shift_of[i]);
-    and the first block's replicas r[i, t], whose Gram matrix r r^T the caller forms (BLAS does a matrix product far
-    faster).
+@njit(inline="always")
+def _chip_and_rest(units, sub, inv_sub):
+    """units // sub and units % sub (floored) by a multiplication: an integer division per sample costs more than
+    everything else done with it."""
+    chip = np.int64(np.floor(units * inv_sub))
+    rest = units - chip * sub
+    if rest < 0:
+        chip, rest = chip - 1, rest + sub
+    elif rest >= sub:
+        chip, rest = chip + 1, rest - sub
+    return chip, rest
 
-    Each block is wiped off (its carrier: one block's exponentials turned by the block's own) and its code positions
-    found here, in one pass. Every offset is a whole number of 1/sub chips: the samples are summed once per 1/sub of
-    a chip, and a chip's sum at any fractional offset is a difference of their running sums -- the cost of a block
-    no longer grows with the sample rate times the number of offsets. Offsets a whole number of chips apart share
-    those chip sums, and each offset's correlation is the code, shifted, against them."""
-    n_off = frac_of.size
-    n_chips = CA_CODE_LENGTH_CHIPS + 1
+
+@njit(inline="always")
+def _add_replicas(d_re, d_im, top, w_re, w_im, sub, inv_sub, n_cross, first_at, code_pad):
+    """w times each offset's replica chip, into d as differences from one offset to the next: a sample at top
+    (1/sub chips, past the first offset) meets code chip `chip` at the first offset, and the next chip at every
+    offset sub - rest units further on -- n_cross crossings over the span, whatever the number of offsets."""
+    chip, rest = _chip_and_rest(top, sub, inv_sub)
+    s = code_pad[chip + PAD_CHIPS]
+    d_re[0] += w_re * s
+    d_im[0] += w_im * s
+    for q in range(n_cross):
+        step = code_pad[chip + q + 1 + PAD_CHIPS] - code_pad[chip + q + PAD_CHIPS]
+        i = first_at[sub - rest + q * sub]
+        d_re[i] += w_re * step
+        d_im[i] += w_im * step
+
+
+@njit(cache=True, nogil=True, fastmath=True)
+def _profile_kernel(samples, block_carrier, carrier, code_phase_chips, chips_per_sample, sub, units, first_at,
+                    code_pad, n_blocks, k):
+    """The wiped blocks (k x 2 n_blocks: each block's real and imaginary parts), the first block's replicas at every
+    offset (offsets x k, +/-1) and each block's correction: y = replicas @ wiped + correction, one matrix product
+    (BLAS) for the bulk of the work.
+
+    The code slides under the blocks only by its Doppler (a few thousandths of a chip a block), so block b's samples
+    meet the same code chips as block 0's but for the few whose 1/sub-chip position moved: those are added again
+    with their own replicas and taken off with block 0's, each as a handful of differences from one offset to the
+    next (_add_replicas) rather than a sum over every offset. Offsets are units[i] / sub chips, sorted; first_at[v]
+    is the first offset at least v units past the first."""
+    n_off = units.size
     n_sub = CA_CODE_LENGTH_CHIPS * sub
-    y = np.zeros((n_off, n_blocks), dtype=np.complex128)
-    chip, rest = np.empty(k, dtype=np.int64), np.empty(k, dtype=np.int64)
-    c_re, c_im = np.zeros(n_sub + 1), np.zeros(n_sub + 1)
-    b_re, b_im = np.empty(n_chips), np.empty(n_chips)
-    first = np.empty((n_off, k), dtype=np.float32)   # +/-1: its products sum exactly in single precision
+    u0 = units[0]
+    n_cross = (units[n_off - 1] - u0) // sub + 1
+    inv_sub = 1.0 / sub
+    wiped = np.empty((k, 2 * n_blocks), dtype=np.float32)
+    correction = np.zeros((n_off, n_blocks), dtype=np.complex128)
+    d_re, d_im = np.empty(n_off + 1), np.empty(n_off + 1)   # the last slot takes crossings past the last offset
+    fine0 = np.empty(k, dtype=np.int64)
     for b in range(n_blocks):
-        c_re[:] = 0.0
-        c_im[:] = 0.0
+        d_re[:] = 0.0
+        d_im[:] = 0.0
+        moved = False
         turn = block_carrier[b]
         # whole code periods taken off by subtraction instead of a remainder per sample: an integer times the period
         # off the position is exact in floating point, as the remainder is
         wraps = np.floor((code_phase_chips + b * k * chips_per_sample) / CA_CODE_LENGTH_CHIPS)
         for t in range(k):
             w = samples[b * k + t] * carrier[t] * turn
+            wiped[t, 2 * b] = w.real
+            wiped[t, 2 * b + 1] = w.imag
             pos = (code_phase_chips + (b * k + t) * chips_per_sample) - wraps * CA_CODE_LENGTH_CHIPS
             if pos >= CA_CODE_LENGTH_CHIPS:
                 wraps += 1.0
                 pos -= CA_CODE_LENGTH_CHIPS
             fine = min(np.int64(pos * sub), n_sub - 1)
-            c_re[fine + 1] += w.real
-            c_im[fine + 1] += w.imag
-            if b == 0:   # floor(pos + j / sub) = chip + (rest + j >= sub): no division per offset below
-                chip[t], rest[t] = fine // sub, fine % sub
-        for g in range(n_sub):
-            c_re[g + 1] += c_re[g]
-            c_im[g + 1] += c_im[g]
-        for f in range(frac_sub.size):
-            j = frac_sub[f]
-            # chip m at this offset: the 1/sub bins from m * sub - j on (the first chip starts at 0, the last one
-            # ends at n_sub: they are cut short, or empty)
-            b_re[0], b_im[0] = c_re[sub - j], c_im[sub - j]
-            for m in range(1, n_chips - 1):
-                lo = m * sub - j
-                b_re[m] = c_re[lo + sub] - c_re[lo]
-                b_im[m] = c_im[lo + sub] - c_im[lo]
-            lo = CA_CODE_LENGTH_CHIPS * sub - j
-            b_re[n_chips - 1] = c_re[n_sub] - c_re[lo] if j > 0 else 0.0
-            b_im[n_chips - 1] = c_im[n_sub] - c_im[lo] if j > 0 else 0.0
+            if b == 0:
+                fine0[t] = fine
+            elif fine != fine0[t]:
+                moved = True
+                _add_replicas(d_re, d_im, fine + u0, w.real, w.imag, sub, inv_sub, n_cross, first_at, code_pad)
+                _add_replicas(d_re, d_im, fine0[t] + u0, -w.real, -w.imag, sub, inv_sub, n_cross, first_at,
+                              code_pad)
+        if moved:
+            acc_re, acc_im = 0.0, 0.0
             for i in range(n_off):
-                if frac_of[i] != f:
-                    continue
-                base = shift_of[i] + PAD_CHIPS
-                acc_re, acc_im = 0.0, 0.0
-                for m in range(n_chips):
-                    acc_re += code_pad[m + base] * b_re[m]
-                    acc_im += code_pad[m + base] * b_im[m]
-                y[i, b] = acc_re + 1j * acc_im
-                if b == 0:
-                    for t in range(k):
-                        first[i, t] = code_pad[chip[t] + (1 if rest[t] + j >= sub else 0) + base]
-    return y, first
+                acc_re += d_re[i]
+                acc_im += d_im[i]
+                correction[i, b] = acc_re + 1j * acc_im
+    # block 0's replicas: the chip of offset i is the first offset's plus (rest + units[i] - u0) // sub
+    ahead = np.empty((sub, n_off), dtype=np.int64)
+    for r in range(sub):
+        for i in range(n_off):
+            ahead[r, i] = (r + units[i] - u0) // sub
+    first = np.empty((n_off, k), dtype=np.float32)
+    for t in range(k):
+        chip, rest = _chip_and_rest(fine0[t] + u0, sub, inv_sub)
+        for i in range(n_off):
+            first[i, t] = code_pad[chip + ahead[rest, i] + PAD_CHIPS]
+    return wiped, first, correction
 
 
 MAX_SUB = 1000   # offsets on a grid finer than 1/MAX_SUB chip are refused
 
 
 @functools.lru_cache(maxsize=16)
-def _split_offsets(offsets_chips: tuple) -> tuple:
-    """The offsets' grid (every offset a whole number of 1/sub chips), each offset's fractional part in 1/sub chips
-    (shared by offsets whole chips apart: frac_sub[frac_of[i]]) and its whole number of chips (cached: every fit
-    asks for the same grid)."""
+def _grid(offsets_chips: tuple) -> tuple:
+    """The offsets' grid (every offset a whole number of 1/sub chips), their order, each in units of 1/sub chip
+    (sorted), and first_at[v]: the first of them at least v units past the first (cached: every fit asks for the
+    same offsets)."""
     offsets = np.asarray(offsets_chips, dtype=np.float64)
     sub = next((r for r in range(1, MAX_SUB + 1) if np.allclose(offsets * r, np.round(offsets * r), atol=1e-6)), None)
     if sub is None:
         raise ValueError(f"delay offsets must lie on a grid of 1/{MAX_SUB} chip or coarser")
-    units = np.round(offsets * sub).astype(np.int64)
-    shift = np.floor_divide(units, sub)
-    frac_sub, frac_of = np.unique(units - shift * sub, return_inverse=True)
-    return sub, frac_sub.astype(np.int64), frac_of.astype(np.int64), shift.astype(np.int64)
+    order = np.argsort(offsets, kind="stable")
+    units = np.round(offsets[order] * sub).astype(np.int64)
+    first_at = np.searchsorted(units - units[0], np.arange(units[-1] - units[0] + sub + 1), side="left")
+    return sub, order, units, first_at.astype(np.int64)
 
 
 @functools.lru_cache(maxsize=64)
@@ -166,11 +191,15 @@ def delay_profile(samples, fs_hz, prn, code_phase_chips, doppler_hz, if_hz, offs
     block_carrier, carrier = _carrier(fs_hz, doppler_hz, if_hz, n_blocks)
     code = float_code(prn)
     code_pad = np.concatenate([code[-PAD_CHIPS:], code, code[:PAD_CHIPS]])
-    y, first = _profile_kernel(np.ascontiguousarray(samples[:k * n_blocks]), block_carrier, carrier,
-                               float(code_phase_chips), _chips_per_sample(fs_hz, doppler_hz),
-                               *_split_offsets(tuple(np.asarray(offsets_chips, dtype=np.float64))), code_pad,
-                               n_blocks, k)
-    return y, (first @ first.T).astype(np.float64), k
+    sub, order, units, first_at = _grid(tuple(np.asarray(offsets_chips, dtype=np.float64)))
+    wiped, first, correction = _profile_kernel(np.ascontiguousarray(samples[:k * n_blocks]), block_carrier, carrier,
+                                               float(code_phase_chips), _chips_per_sample(fs_hz, doppler_hz), sub,
+                                               units, first_at, code_pad, n_blocks, k)
+    # products of +/-1 with single-precision samples, summed by BLAS in single precision: errors of a few 1e-7 of
+    # the largest correlation, far below the noise in it
+    y = (first @ wiped).astype(np.float64).view(np.complex128) + correction
+    back = np.argsort(order)   # the offsets' order as asked
+    return y[back], (first @ first.T).astype(np.float64)[np.ix_(back, back)], k
 
 
 def delay_profile_reference(samples, fs_hz, prn, code_phase_chips, doppler_hz, if_hz, offsets_chips, n_blocks):
