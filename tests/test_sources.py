@@ -36,6 +36,17 @@ def test_a_window_of_a_file_is_exactly_those_samples(tmp_path):
     assert src.expected_samples == 25_000 and src.n_samples == 25_000
 
 
+def test_a_file_is_read_ahead_on_a_thread_of_its_own_and_gives_the_same_samples(tmp_path):
+    whole = _noise_file(tmp_path / "n.bin")
+    src = SampleSource(str(tmp_path / "n.bin"))
+    chunks = src.chunks(0.0035)             # 7000 samples a chunk: the file ends in the middle of one
+    first = next(chunks)
+    assert src._input._ahead[:2] == (7000, 7000)   # the next read under way while this chunk is worked on
+    assert np.array_equal(np.concatenate([first, *chunks]), whole)
+    src.close()
+    assert src._input._thread is None
+
+
 def test_a_pipe_gives_the_same_samples_as_the_file_and_counts_a_partial_sample(tmp_path):
     whole = _noise_file(tmp_path / "n.bin")
     raw = (tmp_path / "n.bin").read_bytes() + b"\x01"      # a recorder cut mid-sample

@@ -17,6 +17,7 @@ import os
 import select
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import BinaryIO, Iterator
 
@@ -55,14 +56,35 @@ class Notice:
 
 
 class _FileInput:
+    """A file's samples, each read's successor read and decoded ahead on a thread of its own while the caller works
+    on this one: the decode and the page faults (a second a minute at 10 MSa/s int16, more from a cold disk) leave
+    the thread that tracks. The samples are the same whichever thread reads them."""
+
     def __init__(self, reader):
         self.reader, self.pos = reader, 0
+        self._ahead = None      # (position, count, future) of the read expected next
+        self._thread: ThreadPoolExecutor | None = None
 
     def take(self, n: int) -> np.ndarray:
-        out = self.reader.read(self.pos, n)
+        ahead, self._ahead = self._ahead, None
+        if ahead is not None and ahead[:2] == (self.pos, n):
+            out = ahead[2].result()
+        else:
+            if ahead is not None:
+                ahead[2].exception()   # a wrong guess (a shorter last read): let it finish, then read anew
+            out = self.reader.read(self.pos, n)
         self.reader.release(self.pos, len(out))
         self.pos += len(out)
+        if len(out) == n and self.pos < self.reader.n_samples:
+            if self._thread is None:
+                self._thread = ThreadPoolExecutor(max_workers=1, thread_name_prefix="semperfi-read")
+            self._ahead = (self.pos, n, self._thread.submit(self.reader.read, self.pos, n))
         return out
+
+    def close(self) -> None:
+        if self._thread is not None:
+            self._thread.shutdown(wait=True, cancel_futures=True)
+            self._thread, self._ahead = None, None
 
 
 class _PipeInput:
@@ -295,6 +317,8 @@ class SampleSource:
         return out
 
     def close(self) -> None:
+        if isinstance(self._input, _FileInput):
+            self._input.close()
         src = getattr(self._input, "source", None)
         if src is not None:
             src.close()
