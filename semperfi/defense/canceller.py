@@ -429,8 +429,8 @@ class CancellerStage:
         return track
 
     def push(self, chunk: np.ndarray) -> np.ndarray:
-        self._raw = np.concatenate([self._raw, chunk])
-        self._work = np.concatenate([self._work, chunk])
+        # the chunk joins both buffers (the raw one the tracks read, the one subtracted from), a copy on each core
+        self._raw, self._work = run_each(np.concatenate, ([self._raw, chunk], [self._work, chunk]))
         tracks = list(self.tracks.items())
         # the longest first (a track with a twin within a chip fits two paths too): both threads end together
         longest_first = sorted(tracks, key=lambda item: not item[1]._joint())
@@ -540,8 +540,7 @@ def caf_amplitude(samples: np.ndarray, fs_hz: float, if_hz: float, prn: int, cod
     from ..receiver import correlate_ms
     k = int(round(fs_hz * 1e-3))
     x = samples[:k * n_blocks]
-    peak = correlate_ms(x, fs_hz, prn, code_phase_chips, doppler_hz, if_hz)
-    off = np.concatenate([correlate_ms(x, fs_hz, prn, code_phase_chips + d, doppler_hz, if_hz)
-                          for d in (257.3, 511.7, 768.1)])
-    s_max, floor = float(np.mean(np.abs(peak) ** 2)), float(np.mean(np.abs(off) ** 2))
+    peak, *off = correlate_ms(x, fs_hz, prn, [code_phase_chips + d for d in (0.0, 257.3, 511.7, 768.1)], doppler_hz,
+                              if_hz)
+    s_max, floor = float(np.mean(np.abs(peak) ** 2)), float(np.mean(np.abs(np.concatenate(off)) ** 2))
     return float(np.sqrt(max(s_max - floor, 0.0)) / k)
