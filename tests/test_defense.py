@@ -256,7 +256,7 @@ def test_the_guard_looks_seldom_on_a_quiet_sky_and_still_alarms_a_takeover_a_loo
     seamless takeover is alarmed at most one quiet look and one confirming look (examine_every_s) after its peaks part
     by the alarm's separation plus the two-path margin: before then the separation grows at the push's 200 ns/s."""
     from semperfi.defense.detector import TWO_PATH_MARGIN_CHIPS, DetectorConfig
-    from semperfi.defense.guard import QUIET_NONCOHERENT, SpoofGuard
+    from semperfi.defense.guard import SpoofGuard
     rows = simulate(tmp_path / "t.bin", "constellation.max_satellites=6", "attacker.enabled=true",
                     'attacker.mode="takeover"', "attacker.push_speed_m_s=60.0", f"attacker.push_hold_s={hold_s}",
                     "attacker.power_ramp_s=1.0", duration=10.0)
@@ -267,29 +267,30 @@ def test_the_guard_looks_seldom_on_a_quiet_sky_and_still_alarms_a_takeover_a_loo
         def emit(self, kind, t_s, **fields):
             events.append({"event": kind, "t_s": t_s, **fields})
     guard = SpoofGuard(cfg, FS, events=Events())
-    acquire_in_guard = guard._acquire
+    plan_in_guard, compute_in_guard, screens = guard._plan, guard._compute, {}
 
-    def spied(window, prns, center_hz, span_hz, noncoherent, **screen):
-        looks.append((guard._seen / FS, guard._quiet(), noncoherent))
-        return acquire_in_guard(window, prns, center_hz, span_hz, noncoherent, **screen)
-    guard._acquire = spied
-    fit_in_guard, fits = guard._fit_again, []
+    def planned():
+        plan = plan_in_guard()
+        looks.append(plan)
+        return plan
 
-    def fit_spied(*args):
-        fits.append(guard._seen / FS)
-        return fit_in_guard(*args)
-    guard._fit_again = fit_spied
+    def computed(plan, ahead=True):   # on the thread beside the workers when the look is a screen
+        screens[id(plan)] = ahead
+        return compute_in_guard(plan, ahead)
+    guard._plan, guard._compute = planned, computed
     reader, chunk = open_iq(tmp_path / "t.bin"), int(0.1 * FS)
     for i in range(0, int(10.0 * FS), chunk):
         guard.push(reader.read(i, chunk))
     alarms = [e for e in events if e["event"] == "spoofing_alarm"]
     assert alarms, "a takeover dragging at 60 m/s parts the peaks within 10 s"
     t_alarm = alarms[0]["t_s"]
-    quiet = [(t, nc) for t, q, nc in looks if q]
-    assert len(quiet) >= 2 and all(nc == QUIET_NONCOHERENT for _, nc in quiet), looks
+    # the quiet looks: searches that are screens (2 ms x QUIET_NONCOHERENT first), and fits alone, all computed aside
+    quiet = [p.seen / FS for p in looks if p.quiet and p.carried is None]
+    fits = [p.seen / FS for p in looks if p.carried is not None]
+    assert len(quiet) >= 2 and all(p.screen and screens[id(p)] for p in looks if p.quiet), looks
     every_s = cfg["defense"]["quiet_examine_every_s"]
-    assert all(b - a == pytest.approx(2 * every_s, abs=0.11) for (a, _), (b, _) in zip(quiet, quiet[1:])), quiet
-    assert all(any(f - t == pytest.approx(every_s, abs=0.11) for f in fits) for t, _ in quiet[:-1]), (quiet, fits)
+    assert all(b - a == pytest.approx(2 * every_s, abs=0.11) for a, b in zip(quiet, quiet[1:])), quiet
+    assert all(any(f - t == pytest.approx(every_s, abs=0.11) for f in fits) for t in quiet[:-1]), (quiet, fits)
 
     def separation_ns(t, prn):
         def at(src):

@@ -342,25 +342,50 @@ class SpoofingDetector:
         on: no pair alarms them."""
         self.held = set(prns)
 
-    def examine(self, cafs: dict[int, Caf], t_s: float, samples: np.ndarray | None = None) -> list[Alarm]:
-        """One acquisition's verdict: alarms for PRNs whose pair has now been seen cfg.confirmations times.
+    def _pairs_of(self, cafs: dict[int, Caf], alarmed) -> dict[int, list[PeakPair] | None]:
+        """Each PRN examined (not alarmed: under cancellation, the canceller's verification follows it): its CAF's
+        pairs, None when it cannot be examined (too weak, or explained as cross-talk)."""
+        return {prn: auxiliary_peaks(caf, cafs, self.cfg, self.fs_hz)
+                if examinable(caf.best, caf, cafs, self.cfg, self.fs_hz) else None
+                for prn, caf in cafs.items() if prn not in alarmed}
+
+    @staticmethod
+    def _fit_key(main: Peak, sensitive: bool, samples: np.ndarray) -> tuple:
+        return main, sensitive, samples.size, samples.__array_interface__["data"][0]
+
+    def fits(self, cafs: dict[int, Caf], samples: np.ndarray, sensitive: bool, alarmed) -> dict:
+        """The two-path fits examine() will want of these CAFs (the PRNs showing one peak), computed ahead of it, on
+        another thread: they read nothing of the detector but what is passed (alarmed: its alarmed PRNs then)."""
+        if not self.cfg.two_path:
+            return {}
+        to_fit = [p for p, pairs in self._pairs_of(cafs, alarmed).items() if pairs == []]
+        return dict(zip((self._fit_key(cafs[p].best, sensitive, samples) for p in to_fit), run_each(
+            lambda p: hidden_pair(samples, self.fs_hz, self.if_hz, cafs[p].best, self.cfg, sensitive), to_fit)))
+
+    def examine(self, cafs: dict[int, Caf], t_s: float, samples: np.ndarray | None = None,
+                fits: dict | None = None) -> list[Alarm]:
+        """One acquisition's verdict: alarms for PRNs whose pair has now been seen cfg.confirmations times (fits:
+        two-path fits computed ahead, self.fits; those it lacks are fitted here).
 
         A PRN that cannot be examined (too weak, or explained as cross-talk) counts as not examined: its single-look
         streak starts again."""
         alarms = []
         sensitive = self.sensitive
         pairs_of = {}   # the PRNs examined: their CAF's pairs
-        for prn, caf in cafs.items():
-            if prn in self.alarmed:      # under cancellation: the canceller's verification follows it
-                continue
-            if not examinable(caf.best, caf, cafs, self.cfg, self.fs_hz):
+        for prn, pairs in self._pairs_of(cafs, self.alarmed).items():
+            if pairs is None:
                 self.single_looks[prn] = 0
-                continue
-            pairs_of[prn] = auxiliary_peaks(caf, cafs, self.cfg, self.fs_hz)
+            else:
+                pairs_of[prn] = pairs
         # the two-path fits of the PRNs showing one peak, on every core (each fit is the same on any thread)
         to_fit = [p for p, pairs in pairs_of.items() if not pairs] if self.cfg.two_path and samples is not None else []
-        fits = dict(zip(to_fit, run_each(
-            lambda p: hidden_pair(samples, self.fs_hz, self.if_hz, cafs[p].best, self.cfg, sensitive), to_fit)))
+        ahead = fits or {}
+
+        def fit(p: int) -> PeakPair | None:
+            key = self._fit_key(cafs[p].best, sensitive, samples)
+            return ahead[key] if key in ahead else hidden_pair(samples, self.fs_hz, self.if_hz, cafs[p].best,
+                                                               self.cfg, sensitive)
+        fits = dict(zip(to_fit, run_each(fit, to_fit)))
         for prn, pairs in pairs_of.items():
             caf = cafs[prn]
             if prn in fits:

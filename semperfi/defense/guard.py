@@ -6,12 +6,12 @@
 Used in front of the receiver chain (DefendedReceiver) and on its own as the plug-in filter (semperfi clean).
 """
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..gps import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, L1_HZ, chips_apart, chips_offset
-from ..receiver import DopplerGrid, Peak, acquire
+from ..receiver import DopplerGrid, Peak, acquire, run_aside
 from .beat import BIN_HZ, WINDOW_MS as BEAT_WINDOW_MS, common_beat
 from .canceller import JOINT_WITHIN_CHIPS, Canceller, CancellerConfig, biased_twin, caf_amplitude, refine_peak
 from .detector import (TWO_PATH_BLOCK_S, Alarm, DetectorConfig, SpoofingDetector, auxiliary_peaks, examinable,
@@ -63,6 +63,27 @@ COMMON_WAIT_S = 1.0    # a beat on a few PRNs alike, no alarm yet: how long the 
 MAX_SWAPS = 2          # a PRN whose cancelled peak is found legitimate this often is given up
 ABSENT_MARGIN_S = 1.0  # a full search's absent PRNs stand this long past the next one's due time (then: search again)
 EXAMINE_MAX_PEAKS = 16  # a strong spoofer's Doppler and code sidelobes are local maxima too: room for its twin
+
+
+# A quiet sky's screen is applied this long after it was due, computed meanwhile beside the receiver's work on the
+# next samples (its search and fits, a look's whole cost, then take no time of their own); under examine_every_s, so
+# that a pair a screen finds is confirmed when it would have been
+LOOK_APPLIED_AFTER_S = 0.3
+
+
+@dataclass(frozen=True, eq=False)
+class _LookPlan:
+    x: np.ndarray             # the window searched
+    first: int                # its first sample's absolute index
+    seen: int                 # raw samples received when the look was due
+    full: bool                # every PRN searched
+    prns: tuple
+    screen: bool              # a screen first (quiet or settled), looked at in full when it sees anything
+    windows_hz: dict | None   # a screen's Doppler window of each PRN
+    quiet: bool               # nothing seen of an attack
+    carried: dict | None      # a quiet sky's fits-only look: the last search's CAFs, carried to this window
+    sensitive: bool
+    alarmed: frozenset        # the detector's alarmed PRNs (not fitted)
 
 
 class _Tail:
@@ -175,6 +196,8 @@ class SpoofGuard:
         self._last_look_first = -1
         self._looked: tuple[np.ndarray, int] | None = None   # the window the latest examination searched
         self._searched: tuple[int, dict] | None = None      # a quiet search's first sample and CAFs, for the next fit
+        self._pending: tuple[_LookPlan, object] | None = None   # a look computed aside: its plan, its future
+        self._apply_after = int(LOOK_APPLIED_AFTER_S * fs_hz)
 
     def _emit(self, kind: str, t_s: float, **fields) -> None:
         if self.events is not None:
@@ -193,12 +216,22 @@ class SpoofGuard:
                 self._identify(self._seen / self.fs_hz)
             for kind, fields in self.maneuver.news():
                 self._emit(kind, self._seen / self.fs_hz, **fields)
+        if self._pending is not None and self._seen >= self._pending[0].seen + self._apply_after:
+            self._apply_pending()
         starting = self.d["mode"] != "off" and self._seen < self._startup_samples
-        if self.d["mode"] != "off" and self._seen >= self._next_exam and self._raw.size >= self.window:
-            self._examine()
-            every = (0.1 if starting else self.d["quiet_examine_every_s"] if self._quiet()
-                     else self.d["settled_examine_every_s"] if self._settled() else self.d["examine_every_s"])
-            self._next_exam = self._seen + int(every * self.fs_hz)
+        if (self.d["mode"] != "off" and self._pending is None and self._seen >= self._next_exam
+                and self._raw.size >= self.window):
+            plan = self._plan()
+            if not starting and self.maneuver is None and plan.quiet:
+                # a quiet sky's screen: computed aside while the next samples are received, applied
+                # LOOK_APPLIED_AFTER_S after it was due (a pair it finds is confirmed examine_every_s after it was
+                # due, as before). Not under attack: there the canceller keeps both cores busy, and a look beside it
+                # cost more CPU than it saved wall time (GPS-SDR-SIM, 10 MSa/s, every PRN spoofed: 42-45 s against
+                # 41 s a minute)
+                self._pending = (plan, run_aside(self._compute, plan))
+            else:
+                self._apply(plan, *self._compute(plan, ahead=False))
+                self._schedule(plan.seen)
         if starting:                      # hold the first samples until the first looks have decided
             self._held.append(chunk)
             return np.empty(0, dtype=np.complex64)
@@ -234,6 +267,8 @@ class SpoofGuard:
 
     def flush(self) -> np.ndarray:
         """The samples still held back, at the end of the stream."""
+        if self._pending is not None:
+            self._apply_pending()
         held = np.concatenate(self._held) if self._held else np.empty(0, dtype=np.complex64)
         self._held = []
         cleaned = np.concatenate([self.canceller.push(held), self.canceller.flush()])
@@ -277,55 +312,62 @@ class SpoofGuard:
             return self._clean.array(), first
         return self._raw.array(), raw_first
 
-    def _examine(self) -> None:
+    def _schedule(self, seen: int) -> None:
+        """The next look, after one applied that was due at `seen` raw samples."""
+        every = (0.1 if seen < self._startup_samples else self.d["quiet_examine_every_s"] if self._quiet()
+                 else self.d["settled_examine_every_s"] if self._settled() else self.d["examine_every_s"])
+        self._next_exam = seen + int(every * self.fs_hz)
+
+    def _apply_pending(self) -> None:
+        """The look computed aside, applied now (its results waited for if need be)."""
+        (plan, future), self._pending = self._pending, None
+        self._apply(plan, *future.result())
+        self._schedule(plan.seen)
+
+    def _plan(self) -> _LookPlan:
+        """What the look due now searches, decided from the guard's state now; the search and fits themselves
+        (_compute) read nothing else, so they may run on another thread while that state moves on."""
         x, first = self._look()
-        self._looked = (x, first)
         t_s = first / self.fs_hz
         full = self._seen >= self._next_full or not self.present_prns
         searched, self._searched = self._searched, None
-        if (searched is not None and not full and self._quiet()
-                and (self.maneuver is None or not self.maneuver.due_to_start(t_s))):
-            self._fit_again(x, first, *searched)
-            return
-        prns = list(range(1, 33)) if full else sorted(self.present_prns | self.extra_prns)
+        quiet = self._quiet()
+        due = self.maneuver is not None and self.maneuver.due_to_start(t_s)
         if full:
             self._next_full = self._seen + int(self.d["full_search_every_s"] * self.fs_hz)
-        quiet = self._quiet()
+        prns = tuple(range(1, 33)) if full else tuple(sorted(self.present_prns | self.extra_prns))
+        carried = None
+        if searched is not None and not full and quiet and not due:
+            carried = self._carried(first, *searched)
         # nothing seen (past the start-up's first look, which sees every PRN in full), or an attack dealt with and
         # nothing waiting: a screen, and a full look at what it sees
         calm = not (self.detector.sensitive or self.detector.pending()) and bool(
             self.present_prns or self._seen >= self._startup_samples)
         screen = calm or self._settled()
-        span_hz = self.cfg["acquisition"]["doppler_max_hz"]
-        if screen:
-            cafs = self._acquire(x, prns, 0.0, span_hz, QUIET_NONCOHERENT,
-                                 windows_hz=None if full else self._around_last(prns), most_columns=QUIET_COLUMNS)
-        else:
-            cafs = self._acquire(x, prns, 0.0, span_hz, EXAMINE_NONCOHERENT)
-        if screen and self._worth_a_full_look(cafs):
-            cafs = self._acquire(x, prns, 0.0, span_hz, EXAMINE_NONCOHERENT)
-        if full:
-            self.absent_prns = frozenset(p for p, c in cafs.items() if c.best is None)
-            self.sky_interference = (next(iter(cafs.values())).interference, t_s)
-            self._absent_until = self._seen + int((self.d["full_search_every_s"] + ABSENT_MARGIN_S) * self.fs_hz)
-        # a strong attacker's cross-talk puts peaks on absent PRNs: examining them every look would cost the most
-        peaks = self._examinable_peaks(cafs)
-        self.present_prns |= peaks.keys()
-        self._last_cafs.update(cafs)
-        if self.maneuver is not None and self.maneuver.due_to_start(t_s):
-            self._follow_through_maneuver(cafs)
-        self._check_power(peaks, t_s)
-        self.detector.hold(self._held_by_beat(t_s))
-        for alarm in self.detector.examine(cafs, t_s, x if self.detector.sensitive else x[:self.window // 2]):
-            self._alarm(alarm.prn, t_s, alarm.pair.as_event())
-            if self.d["mode"] == "full":
-                self._on_alarm(alarm, t_s)
-        self._look_deeper(cafs)
-        self._note_awaiting_pairs(cafs, first)
-        if quiet and self._quiet():
-            self._searched = (first, cafs)
+        return _LookPlan(x, first, self._seen, full, prns, screen,
+                         None if full or not screen else self._around_last(prns), quiet, carried,
+                         self.detector.sensitive, frozenset(self.detector.alarmed))
 
-    def _fit_again(self, x: np.ndarray, first: int, searched_first: int, cafs: dict) -> None:
+    def _compute(self, plan: _LookPlan, ahead: bool = True) -> tuple[dict, dict]:
+        """The look's CAFs, and (ahead: computed aside) the two-path fits the detector will want of them."""
+        if plan.carried is not None:
+            cafs = plan.carried
+        else:
+            span_hz = self.cfg["acquisition"]["doppler_max_hz"]
+            cafs = None
+            if plan.screen:
+                cafs = self._acquire(plan.x, plan.prns, 0.0, span_hz, QUIET_NONCOHERENT,
+                                     windows_hz=plan.windows_hz, most_columns=QUIET_COLUMNS)
+            if cafs is None or self._worth_a_full_look(cafs):
+                cafs = self._acquire(plan.x, plan.prns, 0.0, span_hz, EXAMINE_NONCOHERENT)
+        samples = self._fitted(plan.x, plan.sensitive and plan.carried is None)
+        return cafs, self.detector.fits(cafs, samples, plan.sensitive, plan.alarmed) if ahead else {}
+
+    def _fitted(self, x: np.ndarray, sensitive: bool) -> np.ndarray:
+        """The samples a look's two-path fits take: all 40 ms once the attack is known, else the first 20."""
+        return x if sensitive else x[:self.window // 2]
+
+    def _carried(self, first: int, searched_first: int, cafs: dict) -> dict:
         """A quiet sky's every other look: no search, the two-path fits alone, around the peaks the last search
         found, carried to this window by their own Doppler (a 30 Hz error moves one 0.04 chip in 2 s; the fit spans
         +/-2 chips). A takeover's hidden pair is fitted at every look, as before; a second peak elsewhere and the
@@ -335,12 +377,39 @@ class SpoofGuard:
         def carried(p: Peak) -> Peak:
             advance = dt_s * CA_CHIP_RATE_HZ * (1.0 + p.doppler_hz / L1_HZ)
             return replace(p, code_phase_chips=float((p.code_phase_chips + advance) % CA_CODE_LENGTH_CHIPS))
-        cafs = {prn: replace(caf, peaks=tuple(map(carried, caf.peaks))) for prn, caf in cafs.items()}
+        return {prn: replace(caf, peaks=tuple(map(carried, caf.peaks))) for prn, caf in cafs.items()}
+
+    def _apply(self, plan: _LookPlan, cafs: dict, fits: dict) -> None:
+        """What a look saw, acted on: alarms, cancellations, the PRNs present (fits: computed ahead, by key)."""
+        x, first = plan.x, plan.first
+        self._looked = (x, first)
         t_s = first / self.fs_hz
-        for alarm in self.detector.examine(cafs, t_s, x[:self.window // 2]):   # quiet: not sensitive
+        if plan.carried is not None:   # quiet: not sensitive
+            for alarm in self.detector.examine(cafs, t_s, self._fitted(x, False), fits):
+                self._alarm(alarm.prn, t_s, alarm.pair.as_event())
+                if self.d["mode"] == "full":
+                    self._on_alarm(alarm, t_s)
+            return
+        if plan.full:
+            self.absent_prns = frozenset(p for p, c in cafs.items() if c.best is None)
+            self.sky_interference = (next(iter(cafs.values())).interference, t_s)
+            self._absent_until = plan.seen + int((self.d["full_search_every_s"] + ABSENT_MARGIN_S) * self.fs_hz)
+        # a strong attacker's cross-talk puts peaks on absent PRNs: examining them every look would cost the most
+        peaks = self._examinable_peaks(cafs)
+        self.present_prns |= peaks.keys()
+        self._last_cafs.update(cafs)
+        if self.maneuver is not None and self.maneuver.due_to_start(t_s):
+            self._follow_through_maneuver(cafs)
+        self._check_power(peaks, t_s)
+        self.detector.hold(self._held_by_beat(t_s))
+        for alarm in self.detector.examine(cafs, t_s, self._fitted(x, self.detector.sensitive), fits):
             self._alarm(alarm.prn, t_s, alarm.pair.as_event())
             if self.d["mode"] == "full":
                 self._on_alarm(alarm, t_s)
+        self._look_deeper(cafs)
+        self._note_awaiting_pairs(cafs, first)
+        if plan.quiet and self._quiet():
+            self._searched = (first, cafs)
 
     def _worth_a_full_look(self, cafs: dict) -> bool:
         """Whether a quiet look saw anything to decide on: a second peak, or signals near the power rule. Decisions
@@ -863,6 +932,8 @@ class SpoofGuard:
 
     def finish(self) -> None:
         """At the end of the stream: what the canceller achieved, and what was given up."""
+        if self._pending is not None:
+            self._apply_pending()
         t_s = self._seen / self.fs_hz
         self._emit("defense_summary", t_s, alarms=sorted(self.alarmed_prns), cancelled=sorted(self.cancel_started),
                    verified=sorted(self.verified), gave_up=self.gave_up, removed=sorted(self.removed),

@@ -23,5 +23,5 @@ __all__, __getattr__, __dir__ = lazy_face(__name__, {
     "run": ("NoSignal", "run_file"),
     "tracking": ("Channel", "LoopConfig", "NEXT_SAMPLE", "initial_state"),
     "types": ("Fix", "TRUSTED_STATES"),
-    "workers": ("cores", "run_each"),
+    "workers": ("cores", "run_aside", "run_each"),
 })

@@ -6,7 +6,7 @@ only the wall time.
 
 import os
 import threading
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Callable, Iterable, TypeVar
 
 import numpy as np
@@ -38,6 +38,18 @@ def run_each(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
     if _POOL is None:
         _POOL = ThreadPoolExecutor(max_workers=min(MAX_WORKERS, cores()), thread_name_prefix="semperfi")
     return list(_POOL.map(fn, items))
+
+
+_ASIDE: ThreadPoolExecutor | None = None
+
+
+def run_aside(fn: Callable[..., R], *args) -> Future:
+    """fn(*args) on a thread of its own beside the workers (which it may use), for work whose result the caller
+    collects later (future.result()): one such call at a time, in the order asked."""
+    global _ASIDE
+    if _ASIDE is None:
+        _ASIDE = ThreadPoolExecutor(max_workers=1, thread_name_prefix="semperfi-aside")
+    return _ASIDE.submit(fn, *args)
 
 
 _LOCAL = threading.local()
