@@ -308,6 +308,41 @@ def test_the_guard_looks_seldom_on_a_quiet_sky_and_still_alarms_a_takeover_a_loo
     assert max(parted.values()) < alarm_ns + 0.05 * chip_ns + 0.04 * 200.0, (t_alarm, parted)
 
 
+def test_looks_computed_aside_change_nothing(tmp_path, monkeypatch):
+    """A quiet sky's screens are computed on a thread beside the workers, from a plan made on the main thread: the
+    alarms, the cancellations and the cleaned samples are the same, bit for bit, as with each look computed on the
+    main thread when it is due (a takeover, so that the screens' findings start the attack's looks)."""
+    from concurrent.futures import Future
+    from semperfi.defense import guard as guard_module
+    simulate(tmp_path / "t.bin", "constellation.max_satellites=6", "attacker.enabled=true", 'attacker.mode="takeover"',
+             "attacker.push_speed_m_s=60.0", "attacker.push_hold_s=1.5", "attacker.power_ramp_s=1.0", duration=8.0)
+    reader, chunk = open_iq(tmp_path / "t.bin"), int(0.1 * FS)
+
+    def run() -> tuple[list, bytes, int]:
+        events, aside = [], []
+
+        class Events:
+            def emit(self, kind, t_s, **fields):
+                events.append(json.dumps({"event": kind, "t_s": t_s, **fields}, sort_keys=True, default=str))
+        g = guard_module.SpoofGuard(load_config(), FS, events=Events())
+        compute = g._compute
+        g._compute = lambda plan, ahead=True: (aside.append(ahead), compute(plan, ahead))[1]
+        cleaned = [g.push(reader.read(i, chunk)) for i in range(0, int(8.0 * FS), chunk)] + [g.flush()]
+        return events, np.concatenate(cleaned).tobytes(), sum(aside)
+
+    events, cleaned, n_aside = run()
+
+    def at_once(fn, *args):   # the look computed when it is due, on the main thread
+        done = Future()
+        done.set_result(fn(*args))
+        return done
+    monkeypatch.setattr(guard_module, "run_aside", at_once)
+    events_at_once, cleaned_at_once, _ = run()
+    assert n_aside >= 2, "the quiet looks before the takeover parts the peaks are computed aside"
+    assert any('"spoofing_alarm"' in e for e in events), "the takeover is alarmed"
+    assert events == events_at_once and cleaned == cleaned_at_once
+
+
 @pytest.mark.parametrize("advantage_db", [0.0, 3.0, 6.0, 10.0])
 def test_amplitude_estimate_from_the_caf_peak(advantage_db):
     """The paper's eq. 10 on peaks that stand apart (an unsynchronized spoofer, 5 us off): a legitimate twin within
