@@ -54,12 +54,15 @@ def test_without_a_turn_the_smoothing_is_unchanged():
 
 @pytest.mark.parametrize("turn", [1.0, np.exp(0.005j)])
 def test_the_compiled_smoothing_equals_its_reference(turn):
-    """The kernel against the plain Python loop it compiles: the same estimates and reference, bit for bit (data
-    bits flipping, a reference started against the first period's sign, no periods at all)."""
+    """The kernel against the plain Python loop it compiles: the same estimates and reference (data bits flipping, a
+    reference started against the first period's sign, no periods at all) to the last bits of their rounding -- on
+    a CPU with FMA the compiler may fuse a complex product's multiply and add, which Python rounds twice (seen: 1
+    ulp on 73 % of the periods with a turn, after a recompilation)."""
     _, noisy = _twin(2.0, snr_db=3.0)
     fast, ref_fast = decision_smooth(noisy, -noisy[0], LAM, turn)
     slow, ref_slow = decision_smooth_reference(noisy, -noisy[0], LAM, turn)
-    np.testing.assert_array_equal(fast, slow)
-    assert ref_fast == ref_slow
+    np.testing.assert_allclose(fast, slow, rtol=1e-12, atol=1e-12)
+    assert np.sign(fast.real).tolist() == np.sign(slow.real).tolist()   # the same data bit every period
+    assert ref_fast == pytest.approx(ref_slow, rel=1e-12)
     empty, ref = decision_smooth(noisy[:0], 0.5 + 0.5j, LAM, turn)
     assert empty.size == 0 and ref == 0.5 + 0.5j
