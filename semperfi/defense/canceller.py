@@ -429,14 +429,21 @@ class CancellerStage:
         return track
 
     def push(self, chunk: np.ndarray) -> np.ndarray:
-        # one after the other: made at once on two cores, the two copies took 20-30 MB more at the peak (10 MSa/s,
-        # every PRN spoofed) for a fraction of a second a minute
+        # the chunk joins the raw buffer the tracks read, then, on a worker beside the tracks, the buffer subtracted
+        # from: under attack the main thread's share of a stage bounds the run. One copy at a time: both at once took
+        # 20-30 MB more at the peak (10 MSa/s, every PRN spoofed)
         self._raw = np.concatenate([self._raw, chunk])
-        self._work = np.concatenate([self._work, chunk])
+        held = self._work
+        work = np.empty(held.size + chunk.size, dtype=np.complex64)
+
+        def join() -> None:
+            work[:held.size] = held
+            work[held.size:] = chunk
         tracks = list(self.tracks.items())
         # the longest first (a track with a twin within a chip fits two paths too): both threads end together
         longest_first = sorted(tracks, key=lambda item: not item[1]._joint())
-        run_each(lambda item: item[1].track(self._raw, self.base), longest_first)
+        run_each(lambda item: join() if item is None else item[1].track(self._raw, self.base), [None, *longest_first])
+        self._work = work
         planned = [(tr, tr.prepare(self._work, self.base)) for _, tr in tracks]
         planned = [(tr, p) for tr, p in planned if p is not None]
         work, base = self._work, self.base

@@ -76,8 +76,8 @@ def _add_replicas(d_re, d_im, top, w_re, w_im, sub, inv_sub, n_cross, first_at, 
 def _profile_kernel(samples, block_carrier, carrier, code_phase_chips, chips_per_sample, sub, units, first_at,
                     code_pad, n_blocks, k):
     """The wiped blocks (k x 2 n_blocks: each block's real and imaginary parts), the first block's replicas at every
-    offset (offsets x k, +/-1) and each block's correction: y = replicas @ wiped + correction, one matrix product
-    (BLAS) for the bulk of the work.
+    offset (offsets x k, +/-1), each block's correction, and the replicas' Gram matrix: y = replicas @ wiped +
+    correction, one matrix product (BLAS) for the bulk of the work.
 
     The code slides under the blocks only by its Doppler (a few thousandths of a chip a block), so block b's samples
     meet the same code chips as block 0's but for the few whose 1/sub-chip position moved: those are added again
@@ -128,12 +128,30 @@ def _profile_kernel(samples, block_carrier, carrier, code_phase_chips, chips_per
     for r in range(sub):
         for i in range(n_off):
             ahead[r, i] = (r + units[i] - u0) // sub
+    # and their Gram matrix, exact (sums of +/-1) and without a product over the samples: offset i meets chip
+    # `chip + ahead[rest, i]`, so gram[i, j] sums pairs[rest, ahead[rest, i], ahead[rest, j]] over the rests, where
+    # pairs[r, a, b] sums code[chip + a] code[chip + b] over the samples with that rest
+    n_ahead = n_cross + 1
     first = np.empty((n_off, k), dtype=np.float32)
+    pairs = np.zeros((sub, n_ahead, n_ahead))
     for t in range(k):
         chip, rest = _chip_and_rest(fine0[t] + u0, sub, inv_sub)
         for i in range(n_off):
             first[i, t] = code_pad[chip + ahead[rest, i] + PAD_CHIPS]
-    return wiped, first, correction
+        for a in range(n_ahead):
+            c_a = code_pad[chip + a + PAD_CHIPS]
+            for b in range(a, n_ahead):
+                pairs[rest, a, b] += c_a * code_pad[chip + b + PAD_CHIPS]
+    gram = np.empty((n_off, n_off))
+    for i in range(n_off):
+        for j in range(i, n_off):
+            g = 0.0
+            for r in range(sub):
+                a, b = ahead[r, i], ahead[r, j]   # sorted offsets: a <= b
+                g += pairs[r, a, b]
+            gram[i, j] = g
+            gram[j, i] = g
+    return wiped, first, correction, gram
 
 
 MAX_SUB = 1000   # offsets on a grid finer than 1/MAX_SUB chip are refused
@@ -192,14 +210,14 @@ def delay_profile(samples, fs_hz, prn, code_phase_chips, doppler_hz, if_hz, offs
     code = float_code(prn)
     code_pad = np.concatenate([code[-PAD_CHIPS:], code, code[:PAD_CHIPS]])
     sub, order, units, first_at = _grid(tuple(np.asarray(offsets_chips, dtype=np.float64)))
-    wiped, first, correction = _profile_kernel(np.ascontiguousarray(samples[:k * n_blocks]), block_carrier, carrier,
-                                               float(code_phase_chips), _chips_per_sample(fs_hz, doppler_hz), sub,
-                                               units, first_at, code_pad, n_blocks, k)
+    wiped, first, correction, gram = _profile_kernel(
+        np.ascontiguousarray(samples[:k * n_blocks]), block_carrier, carrier, float(code_phase_chips),
+        _chips_per_sample(fs_hz, doppler_hz), sub, units, first_at, code_pad, n_blocks, k)
     # products of +/-1 with single-precision samples, summed by BLAS in single precision: errors of a few 1e-7 of
     # the largest correlation, far below the noise in it
     y = (first @ wiped).astype(np.float64).view(np.complex128) + correction
     back = np.argsort(order)   # the offsets' order as asked
-    return y[back], (first @ first.T).astype(np.float64)[np.ix_(back, back)], k
+    return y[back], gram[np.ix_(back, back)], k
 
 
 def delay_profile_reference(samples, fs_hz, prn, code_phase_chips, doppler_hz, if_hz, offsets_chips, n_blocks):
