@@ -384,28 +384,27 @@ class SpoofGuard:
         x, first = plan.x, plan.first
         self._looked = (x, first)
         t_s = first / self.fs_hz
-        if plan.carried is not None:   # quiet: not sensitive
-            for alarm in self.detector.examine(cafs, t_s, self._fitted(x, False), fits):
-                self._alarm(alarm.prn, t_s, alarm.pair.as_event())
-                if self.d["mode"] == "full":
-                    self._on_alarm(alarm, t_s)
-            return
-        if plan.full:
-            self.absent_prns = frozenset(p for p, c in cafs.items() if c.best is None)
-            self.sky_interference = (next(iter(cafs.values())).interference, t_s)
-            self._absent_until = plan.seen + int((self.d["full_search_every_s"] + ABSENT_MARGIN_S) * self.fs_hz)
-        # a strong attacker's cross-talk puts peaks on absent PRNs: examining them every look would cost the most
-        peaks = self._examinable_peaks(cafs)
-        self.present_prns |= peaks.keys()
-        self._last_cafs.update(cafs)
-        if self.maneuver is not None and self.maneuver.due_to_start(t_s):
-            self._follow_through_maneuver(cafs)
-        self._check_power(peaks, t_s)
-        self.detector.hold(self._held_by_beat(t_s))
-        for alarm in self.detector.examine(cafs, t_s, self._fitted(x, self.detector.sensitive), fits):
+        if plan.carried is None:   # a search (not the fits alone): what it found of the sky
+            if plan.full:
+                self.absent_prns = frozenset(p for p, c in cafs.items() if c.best is None)
+                self.sky_interference = (next(iter(cafs.values())).interference, t_s)
+                self._absent_until = plan.seen + int((self.d["full_search_every_s"] + ABSENT_MARGIN_S) * self.fs_hz)
+            # a strong attacker's cross-talk puts peaks on absent PRNs: examining them every look would cost the most
+            peaks = self._examinable_peaks(cafs)
+            self.present_prns |= peaks.keys()
+            self._last_cafs.update(cafs)
+            if self.maneuver is not None and self.maneuver.due_to_start(t_s):
+                self._follow_through_maneuver(cafs)
+            self._check_power(peaks, t_s)
+            self.detector.hold(self._held_by_beat(t_s))
+        # the fits alone are a quiet sky's: never sensitive
+        sensitive = self.detector.sensitive and plan.carried is None
+        for alarm in self.detector.examine(cafs, t_s, self._fitted(x, sensitive), fits):
             self._alarm(alarm.prn, t_s, alarm.pair.as_event())
             if self.d["mode"] == "full":
                 self._on_alarm(alarm, t_s)
+        if plan.carried is not None:
+            return
         self._look_deeper(cafs)
         self._note_awaiting_pairs(cafs, first)
         if plan.quiet and self._quiet():
