@@ -262,3 +262,57 @@ def test_a_hover_stirred_up_is_settled_and_tried_again_not_the_maneuver_aborted(
         pilot.close()
     assert len(hovers) == 3                      # the stirred one, its retry, and the one after the maneuver
     assert flown.ins.t_s[-1] >= maneuver.duration_s
+
+
+def test_without_gps_the_maneuver_is_flown_on_attitude_targets_and_the_mode_given_back_with_the_fix(vehicle):
+    """Issue 24: while SemperFi withholds the position (spoofing suspected) ArduCopter has no GPS; in GUIDED its EKF
+    dead-reckons ~7 s and its failsafe lands the vehicle (SITL did, aborting the maneuver). The flight side then
+    flies the maneuver in GUIDED_NOGPS on attitude targets, steering by its own INS, its track within the INS's
+    error bound of the truth; the mode it found is refused without a position and given back once the fix returns."""
+    v, port = vehicle
+    v.gps_fix_type = 1
+    pilot = Pilot(f"udpout:127.0.0.1:{port}", timeout_s=10)
+    try:
+        status = pilot.prepare()
+        maneuver = draw(ManeuverLimits(), track_heading_rad=status.track_heading_rad,
+                        altitude_m=status.height_above_home_m, rng=random.Random(8))
+        flown = pilot.fly(maneuver)
+        assert flown.without_gps and v.attitude_targets > 100 and v.setpoints == 0
+        assert v.mode == MODES["GUIDED_NOGPS"] and pilot.return_mode == MODES["LOITER"], \
+            "LOITER needs a position: the vehicle is held until it has one"
+        v.gps_fix_type = 3
+        pilot.regain(timeout_s=30.0)
+    finally:
+        pilot.close()
+    assert v.mode == MODES["LOITER"] and pilot.return_mode is None
+    truth = np.array([(t, *p) for t, p in list(v.truth)])
+    t0 = flown.start_time_boot_s
+    ins = flown.ins
+    at = np.column_stack([np.interp(t0 + ins.t_s, truth[:, 0], truth[:, k]) for k in (1, 2, 3)])
+    flown_m = at - at[0]
+    assert np.hypot(*flown_m[-1, :2]) >= 20.0, f"the vehicle moved {np.hypot(*flown_m[-1, :2]):.1f} m"
+    plan_end = np.array([maneuver.north_m[-1], maneuver.east_m[-1], maneuver.down_m[-1]])
+    assert np.linalg.norm(flown_m[-1] - plan_end) < 8.0, (flown_m[-1], plan_end)   # steered by the INS
+    drift = np.linalg.norm(ins.pos_ned_m - flown_m, axis=1)
+    length_s = ins.t_s[-1]
+    # one hover, no second to measure the gyro's drift: its drift tilts gravity by g drift t^4 / 24 more
+    imu = ImuErrors()
+    bound_m = 3.0 * _ins_rms_error_m(imu, length_s) + 9.80665 * imu.gyro_drift_rps_per_s * length_s ** 4 / 24
+    assert drift.max() < bound_m, f"INS drifted {drift.max():.1f} m from the truth in {length_s:.1f} s"
+
+
+def test_without_a_position_after_the_maneuver_the_vehicle_lands(vehicle):
+    """The autopilot never gets its position back (the verdict did not come): after regain's timeout the vehicle
+    lands, as ArduPilot's own failsafe would, and the flight side says so in one line."""
+    from semperfi.flight.mavlink_pilot import PilotError
+    v, port = vehicle
+    v.gps_fix_type = 0
+    pilot = Pilot(f"udpout:127.0.0.1:{port}", timeout_s=10)
+    try:
+        status = pilot.prepare()
+        pilot.fly(draw(ManeuverLimits(), altitude_m=status.height_above_home_m, rng=random.Random(9)))
+        with pytest.raises(PilotError, match="no position") as failed:
+            pilot.regain(timeout_s=3.0)
+    finally:
+        pilot.close()
+    assert v.mode == MODES["LAND"] and "\n" not in str(failed.value)

@@ -1,7 +1,9 @@
 """Claims about the flight side on a real autopilot, ArduCopter SITL (../shared/sitl beside the repository; skipped
 when it is not there): it asks for the streams it reads and gets them at their rates, it refuses a vehicle that is
 disarmed on the ground without touching it, and the inertial track of a maneuver it flies ends within 2 m of the
-simulator's truth (SIM_STATE, read by the test, never by the product), the vehicle given back to its mode.
+simulator's truth (SIM_STATE, read by the test, never by the product), the vehicle given back to its mode; with the
+GPS switched off (as while SemperFi withholds the position) the maneuver is flown in GUIDED_NOGPS, its track within
+the looser bound the flight side then states, and the mode given back once the GPS is on again.
 
 One SITL instance (-I7: TCP 5830/5832) serves the module, at --speedup 5; the maneuver is seeded."""
 
@@ -11,8 +13,9 @@ import sys
 import time
 
 import pytest
+from pymavlink.dialects.v20 import common as mav
 
-from semperfi.eval.autopilot import CRUISE_S, Observer, Sitl
+from semperfi.eval.autopilot import CRUISE_S, GUIDED, Observer, Sitl
 from sitl import SITL_BINARY, SITL_DIR, sitl_fly
 
 pytest.importorskip("pymavlink", reason="pymavlink is not installed")
@@ -30,7 +33,7 @@ def sitl(tmp_path_factory):
     s = Sitl(INSTANCE, SPEEDUP, tmp_path_factory.mktemp("sitl"), SITL_BINARY).start()
     try:
         obs = Observer(s.url(0), speedup=SPEEDUP)
-        obs.streams()
+        obs.streams(extra=(mav.MAVLINK_MSG_ID_GPS_RAW_INT,))
     except BaseException:
         s.stop()
         raise
@@ -94,3 +97,23 @@ def test_a_maneuver_flown_on_arducopter_is_tracked_within_2_m_by_the_imu(sitl):
     assert row["ins_end_error_m"] <= 2.0 and row["ins_max_error_m"] <= 2.0, \
         (f"INS ends {row['ins_end_error_m']:.2f} m from SIM_STATE (max {row['ins_max_error_m']:.2f} m) after "
          f"{row['track_s']:.1f} s")
+
+
+def test_without_gps_the_maneuver_is_flown_in_guided_nogps_and_the_mode_given_back(sitl):
+    from semperfi.flight.deadreckoning import ins_error_bound_m
+    script, s, obs = sitl
+    if not (obs.height_m or 0.0) > 5.0:
+        obs.takeoff(ALTITUDE_M)
+    obs.set_mode(GUIDED)   # after the other maneuver it holds in BRAKE, which takes no position target
+    assert obs.wait_mode(GUIDED)
+    obs.climb_to(ALTITUDE_M)
+    obs.set_mode(BRAKE)
+    assert obs.wait_mode(BRAKE)
+    time.sleep(2.0 / SPEEDUP)
+    row = script.fly_one(s.url(1), obs, rng=random.Random(12), without_gps=True)
+    assert row["flown"].without_gps, "the autopilot had no GPS: GUIDED_NOGPS"
+    assert obs.wait_mode(BRAKE), f"left in mode {obs.custom_mode} (BRAKE needs the position back first)"
+    assert obs.height_m > 15.0, f"the vehicle came down to {obs.height_m:.1f} m (the EKF failsafe lands in GUIDED)"
+    bound_m = float(ins_error_bound_m(row["track_s"], without_gps=True))
+    assert row["ins_end_error_m"] <= bound_m, \
+        f"INS ends {row['ins_end_error_m']:.2f} m from SIM_STATE after {row['track_s']:.1f} s (bound {bound_m:.1f} m)"

@@ -29,7 +29,7 @@ FLIGHT_TIME_S = 0.075         # signal flight time, for the satellites' transmit
 # carrier ranges are good to millimetres: what remains is the INS drift over the maneuver -- a code-range tolerance
 # (4.5 m) would let a spoofed peak with a small signature pass
 CARRIER_RANGE_TOL_M = INS_DRIFT_M + 0.5   # the tolerance less the drift: the carrier ranges' own error
-MAX_DRIFT_BOUND_M = 20.0      # a flight side's drift bound beyond this is no INS track worth a verdict (hostile input)
+MAX_DRIFT_BOUND_M = 50.0      # beyond this a drift bound is hostile input (ignored); without GPS 20 s state 27 m
 
 
 class PeakFollower:

@@ -3,8 +3,9 @@ the receiver and answers each spoofing alarm with a maneuver.
 
 On "alarm": draw a pseudorandom maneuver (the OS's cryptographic source) that moves along every line of sight the
 alarm carries far enough for the receiver to decide its peaks, answer "maneuver_request", fly it over
-MAVLink in GUIDED (mavlink_pilot), answer "maneuver_done" with the IMU-only track (t_s on the vehicle's clock), and
-wait for the "verdict". Alarms that arrive while a maneuver is under way are answered by that maneuver. Every step
+MAVLink in GUIDED (GUIDED_NOGPS when the autopilot has no GPS fix: mavlink_pilot), answer "maneuver_done" with the
+IMU-only track (t_s on the vehicle's clock), give the vehicle its mode back once the autopilot has a position again,
+and wait for the "verdict". Alarms that arrive while a maneuver is under way are answered by that maneuver. Every step
 is reported to `report` as a dict (the demo prints and plots them).
 """
 
@@ -70,22 +71,40 @@ def serve(port: int, key: bytes, vehicle_url: str, report, host: str = "127.0.0.
             except (PilotError, ValueError, RuntimeError) as exc:
                 report({"event": "maneuver_failed", "error": str(exc)})
                 peer.send("maneuver_failed", {"why": str(exc)[:MAX_WHY_CHARS]})   # it waits for no track now
+                _regain(pilot, report)
+                pilot.close()
                 break
+            try:
+                ins, t0 = result.ins, result.start_time_boot_s
+                track = {"maneuver_id": maneuver_id, "t_s": [round(t0 + t, 3) for t in ins.t_s.tolist()],
+                         "north_m": [round(x, 3) for x in ins.pos_ned_m[:, 0].tolist()],
+                         "east_m": [round(x, 3) for x in ins.pos_ned_m[:, 1].tolist()],
+                         "down_m": [round(x, 3) for x in ins.pos_ned_m[:, 2].tolist()],
+                         "drift_bound_m": round(float(ins_error_bound_m(ins.t_s[-1] - ins.t_s[0],
+                                                                        result.without_gps)), 2)}
+                peer.send("maneuver_done", track)
+                report({"event": "maneuver_done", "start_s": round(t0, 2), "end_s": track["t_s"][-1],
+                        "without_gps": result.without_gps, "track": track})
+                flown += 1
+                _regain(pilot, report)   # the verdict gives the autopilot its position back meanwhile
             finally:
                 pilot.close()
-            ins, t0 = result.ins, result.start_time_boot_s
-            track = {"maneuver_id": maneuver_id, "t_s": [round(t0 + t, 3) for t in ins.t_s.tolist()],
-                     "north_m": [round(x, 3) for x in ins.pos_ned_m[:, 0].tolist()],
-                     "east_m": [round(x, 3) for x in ins.pos_ned_m[:, 1].tolist()],
-                     "down_m": [round(x, 3) for x in ins.pos_ned_m[:, 2].tolist()],
-                     "drift_bound_m": round(float(ins_error_bound_m(ins.t_s[-1] - ins.t_s[0])), 2)}
-            peer.send("maneuver_done", track)
-            report({"event": "maneuver_done", "start_s": round(t0, 2), "end_s": track["t_s"][-1], "track": track})
-            flown += 1
             verdict = _await(peer, "verdict", VERDICT_WAIT_S)
             report({"event": "verdict", "payload": verdict})
     finally:
         peer.close()
+
+
+def _regain(pilot: Pilot, report) -> None:
+    """A vehicle left in GUIDED_NOGPS (the maneuver flown without a position) is held level until the autopilot has
+    its position back and takes its mode again, or lands (mavlink_pilot.Pilot.regain)."""
+    if pilot.return_mode is None:
+        return
+    try:
+        pilot.regain(VERDICT_WAIT_S)
+        report({"event": "mode_restored", "mode": pilot.tm.custom_mode})
+    except PilotError as exc:
+        report({"event": "regain_failed", "error": str(exc)})
 
 
 def _authenticated(srv: socket.socket, key: bytes, timeout_s: float, report) -> tuple[LinkPeer, str]:

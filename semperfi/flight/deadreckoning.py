@@ -95,16 +95,62 @@ START_VELOCITY_ERROR_MPS = 0.05        # the autopilot's velocity at the start (
 ACCEL_RESIDUAL_MPS2 = 0.005            # accelerometer bias and start tilt left after the hover's correction
 GYRO_RESIDUAL_RPS = 1.5e-4             # gyro bias left after the two hovers' line (SITL's drifts 0.015 mrad/s^2)
 FLOOR_M = 0.3                          # sample timing: 20 ms at 4 m/s, and the truth's own tagging
+# without GPS (the maneuver flown in GUIDED_NOGPS) the autopilot's velocity at the start is dead-reckoned and the
+# attitude the hover measures the gyro against drifts: ArduCopter SITL, GPS switched off (scripts/sitl-fly
+# --without-gps), 15-21 s tracks ended 1.8-26.8 m off (11 maneuvers; a start velocity 0.09-0.37 m/s off, gyro biases
+# 0.1-2 mrad/s off); this bound held all of them (26.8 m after 20.8 s against 28.1)
+NO_GPS_START_VELOCITY_ERROR_MPS = 0.6
+NO_GPS_ACCEL_RESIDUAL_MPS2 = 0.03
+NO_GPS_GYRO_RESIDUAL_RPS = 6e-4
 
-
-def ins_error_bound_m(t_s):
+def ins_error_bound_m(t_s, without_gps: bool = False):
     """How far a hover-calibrated strapdown track may be from the truth t_s after its start: a start velocity error
     (t), the accelerometer's residual (t^2 / 2) and the gyro's, tilting gravity (g t^3 / 6): 2.4 m after 15 s, 4.3 m
-    after 20 s. The flight side sends it with its track; the identifier's range tolerance grows with it (never under
-    its own INS_DRIFT_M, 2 m)."""
+    after 20 s (without_gps: the autopilot had no GPS at the start, 17 and 27 m). The flight side sends it with its
+    track; the identifier's range tolerance grows with it (never under its own INS_DRIFT_M, 2 m)."""
     t = np.asarray(t_s, float)
-    return (FLOOR_M + START_VELOCITY_ERROR_MPS * t + ACCEL_RESIDUAL_MPS2 * t ** 2 / 2
-            + GRAVITY_NED_MPS2[2] * GYRO_RESIDUAL_RPS * t ** 3 / 6)
+    v, a, w = ((NO_GPS_START_VELOCITY_ERROR_MPS, NO_GPS_ACCEL_RESIDUAL_MPS2, NO_GPS_GYRO_RESIDUAL_RPS) if without_gps
+               else (START_VELOCITY_ERROR_MPS, ACCEL_RESIDUAL_MPS2, GYRO_RESIDUAL_RPS))
+    return FLOOR_M + v * t + a * t ** 2 / 2 + GRAVITY_NED_MPS2[2] * w * t ** 3 / 6
+
+
+class Strapdown:
+    """The strapdown integration one IMU sample at a time, from the attitude c_nb0 and velocity vel0_ned_mps at t0_s
+    (bias: hover_bias, taken off each sample): what the flight side steers by when the autopilot has no position,
+    and what integrate() runs over a whole track."""
+
+    def __init__(self, t0_s: float, accel_body_mps2, gyro_body_rps, c_nb0=None, vel0_ned_mps=None,
+                 bias: HoverBias | None = None):
+        self.t0_s = self.t_s = float(t0_s)
+        self.bias = bias
+        self.residual = np.zeros(3) if bias is None else bias.accel_residual_ned_mps2
+        self.c_nb = np.eye(3) if c_nb0 is None else np.array(c_nb0, float)
+        self.vel_ned_mps = np.zeros(3) if vel0_ned_mps is None else np.array(vel0_ned_mps, float)
+        self.pos_ned_m = np.zeros(3)
+        self._f, self._w = self._corrected(self.t_s, accel_body_mps2, gyro_body_rps)
+
+    def _corrected(self, t_s: float, accel_body_mps2, gyro_body_rps) -> tuple[np.ndarray, np.ndarray]:
+        f, w = np.asarray(accel_body_mps2, float), np.asarray(gyro_body_rps, float)
+        if f.shape != (3,) or w.shape != (3,) or not np.all(np.isfinite(f)) or not np.all(np.isfinite(w)):
+            raise ValueError("IMU samples: accel and gyro must be 3 finite values")
+        if self.bias is not None:
+            w = w - self.bias.gyro_bias_rps - (t_s - self.t0_s) * self.bias.gyro_drift_rps2
+        return f, w
+
+    def step(self, t_s: float, accel_body_mps2, gyro_body_rps) -> None:
+        """Take the next sample (t_s after the last one)."""
+        dt = float(t_s) - self.t_s
+        if not dt > 0:
+            raise ValueError("IMU samples: time must increase")
+        f, w = self._corrected(t_s, accel_body_mps2, gyro_body_rps)
+        c = self.c_nb
+        # trapezoid on rates and specific force: second-order accurate attitude and velocity
+        c_next = c @ rotation_matrix(0.5 * (self._w + w) * dt)
+        a0 = c @ self._f + GRAVITY_NED_MPS2 - self.residual
+        a1 = c_next @ f + GRAVITY_NED_MPS2 - self.residual
+        v_next = self.vel_ned_mps + 0.5 * (a0 + a1) * dt
+        self.pos_ned_m = self.pos_ned_m + 0.5 * (self.vel_ned_mps + v_next) * dt
+        self.vel_ned_mps, self.c_nb, self.t_s, self._f, self._w = v_next, c_next, float(t_s), f, w
 
 
 def integrate(t_s, accel_body_mps2, gyro_body_rps, c_nb0=None, vel0_ned_mps=None, bias: HoverBias | None = None
@@ -116,26 +162,12 @@ def integrate(t_s, accel_body_mps2, gyro_body_rps, c_nb0=None, vel0_ned_mps=None
     w = np.asarray(gyro_body_rps, float)
     if f.shape != (len(t), 3) or w.shape != (len(t), 3) or len(t) < 2:
         raise ValueError("accel and gyro must be (n, 3) with n = len(t_s) >= 2")
-    if np.any(np.diff(t) <= 0) or not np.all(np.isfinite(f)) or not np.all(np.isfinite(w)):
-        raise ValueError("IMU samples: time must increase and values be finite")
-    if bias is not None:
-        w = w - bias.gyro_bias_rps - np.outer(t - t[0], bias.gyro_drift_rps2)
-    residual = np.zeros(3) if bias is None else bias.accel_residual_ned_mps2
-    c = np.eye(3) if c_nb0 is None else np.array(c_nb0, float)
-    v = np.zeros(3) if vel0_ned_mps is None else np.array(vel0_ned_mps, float)
-    p = np.zeros(3)
-    pos, vel = [p.copy()], [v.copy()]
-    for i in range(len(t) - 1):
-        dt = t[i + 1] - t[i]
-        # trapezoid on rates and specific force: second-order accurate attitude and velocity
-        c_next = c @ rotation_matrix(0.5 * (w[i] + w[i + 1]) * dt)
-        a0 = c @ f[i] + GRAVITY_NED_MPS2 - residual
-        a1 = c_next @ f[i + 1] + GRAVITY_NED_MPS2 - residual
-        v_next = v + 0.5 * (a0 + a1) * dt
-        p = p + 0.5 * (v + v_next) * dt
-        v, c = v_next, c_next
-        pos.append(p.copy())
-        vel.append(v.copy())
+    ins = Strapdown(t[0], f[0], w[0], c_nb0, vel0_ned_mps, bias)
+    pos, vel = [ins.pos_ned_m], [ins.vel_ned_mps]
+    for i in range(1, len(t)):
+        ins.step(t[i], f[i], w[i])
+        pos.append(ins.pos_ned_m)
+        vel.append(ins.vel_ned_mps)
     return InsTrack(t, np.array(pos), np.array(vel))
 
 

@@ -1,6 +1,13 @@
 """Flies a maneuver over MAVLink as a companion computer commands ArduCopter in GUIDED mode (PX4's OFFBOARD takes the
 same SET_POSITION_TARGET_LOCAL_NED stream), and dead-reckons it from the vehicle's own IMU, decoupled from GPS.
 
+When the autopilot has no GPS fix (GPS_RAW_INT: SemperFi, its GPS, withholds the position while spoofing is
+suspected), GUIDED is no place to be: ArduCopter's EKF dead-reckons ~7 s and then its EKF failsafe lands the vehicle
+(measured on SITL, which aborted the maneuver). Then the maneuver is flown in GUIDED_NOGPS, which needs no position:
+SET_ATTITUDE_TARGET (thrust 0.5: hold the barometric altitude) on a velocity loop the flight side closes on its own
+strapdown INS, started from the hover's biases at the maneuver start; the hovers hold the attitude level. After
+the maneuver the vehicle is held level until the autopilot has a position again (regain), then given back.
+
 Sequence: wait for the vehicle's HEARTBEAT; ask for the streams it reads (telemetry.STREAMS_HZ, on this link);
 refuse a vehicle that is disarmed, on the ground or too low (prepare); switch to GUIDED (acknowledged, and seen in a
 HEARTBEAT); hover HOVER_S with the heading held, measuring the IMU's biases (deadreckoning.hover_bias); stream the
@@ -26,13 +33,25 @@ from pymavlink.dialects.v20 import common as mav
 
 from ..address import parse_address
 from ..errors import BadInput
-from .deadreckoning import HoverBias, InsTrack, bias_between, hover_bias, integrate
+from .deadreckoning import HoverBias, InsTrack, Strapdown, bias_between, hover_bias, integrate
 from .maneuver import Maneuver, ManeuverLimits
-from .telemetry import IMU_FALLBACK, MSG_ID, STREAMS_HZ, Telemetry, TelemetryError, c_nb
+from .telemetry import (G_MPS2, IMU_FALLBACK, MSG_ID, OPTIONAL_STREAMS_HZ, STREAMS_HZ, Telemetry, TelemetryError,
+                        c_nb, quaternion)
 
 GUIDED = 4
+GUIDED_NOGPS = 20
+LAND = 9
+MODE_NAMES = {GUIDED: "GUIDED", GUIDED_NOGPS: "GUIDED_NOGPS"}
 SETPOINT_HZ = 10.0
 VELOCITY_AND_YAW = 0b0000_1001_1100_0111  # type_mask: use vx, vy, vz and yaw; ignore position, accel, yaw rate
+ATTITUDE_ONLY = 0b0000_0111               # SET_ATTITUDE_TARGET type_mask: ignore the body rates
+ATTITUDE_HZ = 25.0
+# the velocity loop closed on the INS in GUIDED_NOGPS: acceleration = gain x velocity error, under a tilt limit
+VELOCITY_GAIN_PER_S = 1.0
+MAX_TILT_ACCEL_MPS2 = 3.0                 # ~17 deg
+# ArduCopter's thrust in GUIDED_NOGPS is a climb rate: 0.5 none, 1 WPNAV_SPEED_UP, 0 WPNAV_SPEED_DN (their defaults)
+CLIMB_MPS, DESCENT_MPS = 2.5, 1.5
+REGAIN_TRY_S = 1.0                        # how often the mode before the maneuver is asked for again (regain)
 HOVER_S = 3.0                             # the bias-measuring hovers before and after the maneuver (vehicle time)
 HOVER_MAX_SPEED_MPS = 1.0                 # a vehicle drifting faster than this in a zero-velocity hover disobeys
 STILL_MPS = 0.5                           # the hover starts once the vehicle has been this slow for STILL_S
@@ -75,6 +94,7 @@ class FlownManeuver:
     reported_ned_m: np.ndarray     # LOCAL_POSITION_NED during the maneuver (the autopilot's view; for the record)
     reported_t_s: np.ndarray
     bias: HoverBias                # what the hover measured and the track took off
+    without_gps: bool = False      # flown in GUIDED_NOGPS: the autopilot had no GPS fix (a looser error bound)
 
 
 def check_vehicle_url(url: str) -> str:
@@ -101,6 +121,11 @@ class Pilot:
         self._att: list = []        # (t_s, rpy, rates)
         self._pos: list = []        # (t_s, ned, vel)
         self._recording = False
+        self.flying_mode = GUIDED   # GUIDED_NOGPS when the autopilot has no GPS fix (fly)
+        self.return_mode: int | None = None   # the mode to give back once the autopilot has a position (regain)
+        self._ins: Strapdown | None = None    # steering in GUIDED_NOGPS, from the maneuver start
+        self._ins_p0 = np.zeros(3)
+        self._ins_log: list = []    # (t_s, ned, vel) of the INS, as _pos is of the autopilot
 
     def close(self) -> None:
         self.conn.close()
@@ -198,7 +223,10 @@ class Pilot:
                 name = IMU_FALLBACK
             if result != mav.MAV_RESULT_ACCEPTED:
                 raise PilotError(f"vehicle refused to stream {name} (MAV_RESULT {result})")
-        wanted = {self.imu_stream, *(n for n in STREAMS_HZ if n != "HIGHRES_IMU")}
+        accepted = mav.MAV_RESULT_ACCEPTED
+        optional = {name for name, hz in OPTIONAL_STREAMS_HZ.items()
+                    if self.command(mav.MAV_CMD_SET_MESSAGE_INTERVAL, MSG_ID[name], 1e6 / hz) == accepted}
+        wanted = {self.imu_stream, *(n for n in STREAMS_HZ if n != "HIGHRES_IMU"), *optional}
         asked = time.monotonic()
         seen = set()
         deadline = asked + self.timeout_s
@@ -238,7 +266,8 @@ class Pilot:
 
     # -- flying ------------------------------------------------------------------------------------------------
     def fly(self, maneuver: Maneuver) -> FlownManeuver:
-        """Fly the maneuver's legs in GUIDED and return the IMU's track of it (prepare() first, or here)."""
+        """Fly the maneuver's legs in GUIDED (GUIDED_NOGPS when the autopilot has no GPS fix) and return the IMU's
+        track of it (prepare() first, or here)."""
         if self.target is None:
             self.prepare()
         height = self.tm.height_above_home_m
@@ -246,30 +275,68 @@ class Pilot:
         if lowest < self.limits.min_altitude_m - HEIGHT_MARGIN_M:
             raise PilotError(f"the maneuver would take the vehicle down to {lowest:.1f} m above home")
         previous = self.tm.custom_mode
-        self.set_mode(GUIDED)
+        self.flying_mode = GUIDED if self.tm.positioned else GUIDED_NOGPS
+        self.set_mode(self.flying_mode)
         try:
-            flown = self._fly_guided(maneuver)
+            flown = self._fly_legs(maneuver)
         except PilotError as exc:
             self._hold()
             raise ManeuverAborted(f"maneuver aborted: {exc}{self._give_back(previous)}") from None
+        finally:
+            self._ins = None   # an INS is good for a maneuver, not for holding the vehicle afterwards
         self._give_back(previous)
         return flown
 
     def _give_back(self, previous: int) -> str:
         """The mode the vehicle was in, unless someone else (a pilot on the radio, a failsafe) has taken it out of
-        GUIDED meanwhile: the flight side does not fight them. Returns what was done, for an abort's message."""
-        if self.tm.custom_mode != GUIDED:
+        the flying mode meanwhile: the flight side does not fight them. Returns what was done, for an abort's
+        message. A mode that needs a position the autopilot does not have yet is left to regain()."""
+        if self.tm.custom_mode != self.flying_mode:
             return f"; left in mode {self.tm.custom_mode}"
-        if previous != GUIDED:
+        if previous != self.flying_mode:
             try:
                 self.set_mode(previous)
             except PilotError as exc:
-                return f"; mode {previous} not restored: {exc}"
+                if self.flying_mode != GUIDED_NOGPS:
+                    return f"; mode {previous} not restored: {exc}"
+                self.return_mode = previous
+                return f"; held level in GUIDED_NOGPS until the autopilot has a position for mode {previous}"
         return f"; back in mode {previous}"
 
-    def _fly_guided(self, maneuver: Maneuver) -> FlownManeuver:
-        yaw = self.tm.heading_rad
+    def regain(self, timeout_s: float) -> None:
+        """After a maneuver flown without a position: hold the vehicle level in GUIDED_NOGPS until the autopilot has
+        a GPS fix and takes back the mode it was in (asked each REGAIN_TRY_S); after timeout_s, LAND (the safe end
+        without a position, as ArduPilot's own failsafe would choose) and PilotError."""
+        if self.return_mode is None:
+            return
         self._imu, self._att, self._pos = [], [], []
+        self._recording = True
+        try:
+            since = self._imu_time_now()
+            while True:
+                asked = self._imu[-1][0]
+                if self.tm.positioned and self._regained():
+                    return
+                if asked - since > timeout_s:
+                    self.return_mode = None
+                    self.set_mode(LAND)
+                    raise PilotError(f"the autopilot had no position {timeout_s:g} s after the maneuver: landing")
+                self._stream(lambda t: np.zeros(3), self.tm.heading_rad, until=lambda t: t - asked >= REGAIN_TRY_S,
+                             guard=lambda t: self._fit())
+        finally:
+            self._recording = False
+
+    def _regained(self) -> bool:
+        try:
+            self.set_mode(self.return_mode)
+        except PilotError:
+            return False   # its EKF has not taken the fix yet
+        self.return_mode = None
+        return True
+
+    def _fly_legs(self, maneuver: Maneuver) -> FlownManeuver:
+        yaw = self.tm.heading_rad
+        self._imu, self._att, self._pos, self._ins_log = [], [], [], []
         self._recording = True
         try:
             before, before_t = self._hover_until_still(yaw)
@@ -277,6 +344,9 @@ class Pilot:
             c0, v0 = c_nb(*self.tm.attitude_rpy_rad), self.tm.vel_ned_mps.copy()
             p0 = self.tm.pos_ned_m.copy()
             first = len(self._imu) - 1
+            if self.flying_mode == GUIDED_NOGPS:
+                self._ins = Strapdown(start, self._imu[-1][1], self._imu[-1][2], c0, v0, before)
+                self._ins_p0 = p0
             plan = _PlannedVelocity(maneuver)
             self._obey_since = None
             self._stream(lambda t: plan.setpoint(t - start), yaw, until=lambda t: t >= start + maneuver.duration_s,
@@ -286,16 +356,22 @@ class Pilot:
                          until=lambda t: self._stopped(t, start + maneuver.duration_s, stopped),
                          guard=lambda t: self._maneuvering(None, plan, p0))
             last = len(self._imu)
-            after, after_t = self._hover(yaw)
+            if self.flying_mode == GUIDED_NOGPS:
+                # no second hover: the autopilot's attitude, which it measures the gyro against, has no GPS to
+                # steady it by then (SITL: a drift of 0.6 mrad/s per second read from it, the track 7 m off)
+                bias = before
+            else:
+                after, after_t = self._hover(yaw)
+                bias = bias_between(before, after, before_t, after_t, start)
         finally:
             self._recording = False
-        bias = bias_between(before, after, before_t, after_t, start)
         imu = self._imu[first:last]
         t = np.array([s[0] for s in imu]) - start
         ins = integrate(t, np.array([s[1] for s in imu]), np.array([s[2] for s in imu]), c_nb0=c0,
                         vel0_ned_mps=v0, bias=bias)
         pos = [(pt - start, ned) for pt, ned, _ in self._pos if start <= pt <= imu[-1][0]]
-        return FlownManeuver(ins, start, np.array([p for _, p in pos]) - p0, np.array([pt for pt, _ in pos]), bias)
+        return FlownManeuver(ins, start, np.array([p for _, p in pos]) - p0, np.array([pt for pt, _ in pos]), bias,
+                             self.flying_mode == GUIDED_NOGPS)
 
     def _hover_until_still(self, yaw_rad: float) -> tuple[HoverBias, float]:
         """The hover before the maneuver, tried HOVER_TRIES times if the vehicle would not keep still."""
@@ -307,14 +383,16 @@ class Pilot:
         return self._hover(yaw_rad)
 
     def _hover(self, yaw_rad: float) -> tuple[HoverBias, float]:
-        """Zero velocity with the heading held for HOVER_S; the IMU's biases it measured, and its mid-time."""
+        """Zero velocity with the heading held for HOVER_S; the IMU's biases it measured, and its mid-time. Its
+        velocities are the INS's once one steers (the autopilot's are then dead-reckoned, or held at zero)."""
         self._settle(yaw_rad)
-        i0, a0, p0 = len(self._imu), len(self._att), len(self._pos)
+        velocities = self._pos if self._ins is None else self._ins_log
+        i0, a0, p0 = len(self._imu), len(self._att), len(velocities)
         t0 = self._hover_t0 = self._imu_time_now()
         self._stream(lambda t: np.zeros(3), yaw_rad, until=lambda t: t >= t0 + HOVER_S, guard=self._hovering)
-        imu, att, pos = self._imu[max(i0 - 1, 0):], self._att[a0:], self._pos[max(p0 - 1, 0):]
+        imu, att, pos = self._imu[max(i0 - 1, 0):], self._att[a0:], velocities[max(p0 - 1, 0):]
         if len(pos) < 2:
-            raise PilotError(f"no LOCAL_POSITION_NED during the {HOVER_S:g} s hover")
+            raise PilotError(f"no velocity during the {HOVER_S:g} s hover")
         try:
             bias = hover_bias([s[0] for s in imu], [s[1] for s in imu], [s[2] for s in imu], [a[0] for a in att],
                               [a[1] for a in att], [p[0] for p in pos], [p[2] for p in pos])
@@ -332,8 +410,8 @@ class Pilot:
             if self._stopped(t, math.inf, state, STILL_MPS):
                 return True
             if t - t0 > SETTLE_MAX_S:
-                raise PilotError(f"vehicle does not hold still in GUIDED ({np.linalg.norm(self.tm.vel_ned_mps):.1f} "
-                                 f"m/s after {SETTLE_MAX_S:g} s of zero velocity)")
+                raise PilotError(f"vehicle does not hold still ({np.linalg.norm(self._velocity()):.1f} m/s after "
+                                 f"{SETTLE_MAX_S:g} s of zero velocity)")
             return False
         self._stream(lambda t: np.zeros(3), yaw_rad, until=still, guard=lambda t: self._fit())
 
@@ -344,21 +422,59 @@ class Pilot:
 
     def _stream(self, velocity, yaw_rad: float, until, guard) -> None:
         """Send velocity(t) with the heading held at SETPOINT_HZ of IMU time until until(t), guard(t) checking each
-        IMU sample; every stream must keep coming (a silence of timeout_s is an error)."""
+        IMU sample; every stream must keep coming (a silence of timeout_s is an error). In GUIDED_NOGPS: attitude
+        targets at ATTITUDE_HZ (_attitude_for)."""
         next_s = -math.inf
         while True:
             self._wait_for({self.imu_stream}, self.imu_stream)
-            t = self._imu[-1][0]
+            t, f, w = self._imu[-1]
+            if self._ins is not None and t > self._ins.t_s:
+                self._ins.step(t, f, w)
+                self._ins_log.append((t, self._ins_p0 + self._ins.pos_ned_m, self._ins.vel_ned_mps))
             self._check_streams()
             guard(t)
             if until(t):
                 return
-            if t >= next_s:
-                v = velocity(t)
+            if t < next_s:
+                continue
+            v = velocity(t)
+            if self.flying_mode == GUIDED_NOGPS:
+                self._send_attitude(t, *self._attitude_for(v, yaw_rad))
+                next_s = t + 1.0 / ATTITUDE_HZ
+            else:
                 self.conn.mav.set_position_target_local_ned_send(int(t * 1000) & 0xFFFFFFFF, *self.target,
                                                                  mav.MAV_FRAME_LOCAL_NED, VELOCITY_AND_YAW,
                                                                  0, 0, 0, *v, 0, 0, 0, yaw_rad, 0)
                 next_s = t + 1.0 / SETPOINT_HZ
+
+    def _attitude_for(self, velocity_ned_mps: np.ndarray, yaw_rad: float) -> tuple[float, float, float, float]:
+        """(roll, pitch, yaw, thrust) for GUIDED_NOGPS: the tilt whose thrust gives the acceleration the velocity
+        loop on the INS asks for, the heading held, the thrust as the climb rate asked; level with no INS (the
+        hover before the maneuver: a level multicopter holds its velocity but for drag)."""
+        climb = -float(velocity_ned_mps[2])
+        thrust = 0.5 + 0.5 * max(-1.0, min(1.0, climb / (CLIMB_MPS if climb > 0 else DESCENT_MPS)))
+        if self._ins is None:
+            return 0.0, 0.0, yaw_rad, thrust
+        a = VELOCITY_GAIN_PER_S * (np.asarray(velocity_ned_mps[:2], float) - self._ins.vel_ned_mps[:2])
+        norm = math.hypot(*a)
+        if norm > MAX_TILT_ACCEL_MPS2:
+            a *= MAX_TILT_ACCEL_MPS2 / norm
+        forward = math.cos(yaw_rad) * a[0] + math.sin(yaw_rad) * a[1]
+        right = -math.sin(yaw_rad) * a[0] + math.cos(yaw_rad) * a[1]
+        pitch = -math.atan2(forward, G_MPS2)      # nose down to speed up forward
+        roll = math.atan2(right * math.cos(pitch), G_MPS2)
+        return roll, pitch, yaw_rad, thrust
+
+    def _send_attitude(self, t_s: float, roll: float, pitch: float, yaw: float, thrust: float) -> None:
+        self.conn.mav.set_attitude_target_send(int(t_s * 1000) & 0xFFFFFFFF, *self.target, ATTITUDE_ONLY,
+                                               quaternion(roll, pitch, yaw), 0, 0, 0, thrust)
+
+    def _velocity(self) -> np.ndarray:
+        """The vehicle's velocity as the flight side knows it: its INS's while one steers, else the autopilot's."""
+        return self.tm.vel_ned_mps if self._ins is None else self._ins.vel_ned_mps
+
+    def _position(self) -> np.ndarray:
+        return self.tm.pos_ned_m if self._ins is None else self._ins_p0 + self._ins.pos_ned_m
 
     def _check_streams(self) -> None:
         now = time.monotonic()
@@ -371,28 +487,28 @@ class Pilot:
         tm = self.tm
         if not tm.armed:
             raise PilotError("vehicle disarmed")
-        if tm.custom_mode != GUIDED:
-            raise PilotError(f"vehicle left GUIDED (now mode {tm.custom_mode}): a pilot or a failsafe took over")
+        if tm.custom_mode != self.flying_mode:
+            raise PilotError(f"vehicle left {MODE_NAMES[self.flying_mode]} (now mode {tm.custom_mode}): a pilot or a "
+                             "failsafe took over")
         low = self.limits.min_altitude_m - HEIGHT_MARGIN_M
         if tm.height_above_home_m < low:
             raise PilotError(f"vehicle down to {tm.height_above_home_m:.1f} m above home (safe height {low:g} m)")
 
     def _hovering(self, t: float) -> None:
         self._fit()
-        speed = float(np.linalg.norm(self.tm.vel_ned_mps))
+        speed = float(np.linalg.norm(self._velocity()))
         if speed > HOVER_MAX_SPEED_MPS and self._imu[-1][0] - self._hover_t0 > 1.5:
-            raise Restless(f"vehicle does not hold still in GUIDED ({speed:.1f} m/s with zero velocity asked)")
+            raise Restless(f"vehicle does not hold still ({speed:.1f} m/s with zero velocity asked)")
 
     def _maneuvering(self, t_man: float | None, plan: _PlannedVelocity, p0: np.ndarray) -> None:
         self._fit()
-        tm = self.tm
-        out_m = math.hypot(*(tm.pos_ned_m[:2] - p0[:2]))
+        out_m = math.hypot(*(self._position()[:2] - p0[:2]))
         if out_m > self.limits.geofence_radius_m:
             raise PilotError(f"vehicle {out_m:.0f} m from the start, outside the {self.limits.geofence_radius_m:g} m "
                              "geofence")
         if t_man is None:
             return
-        off = float(np.linalg.norm(tm.vel_ned_mps - plan.velocity(t_man)))
+        off = float(np.linalg.norm(self._velocity() - plan.velocity(t_man)))
         if off <= OBEY_TOLERANCE_MPS:
             self._obey_since = None
         elif self._obey_since is None:
@@ -402,13 +518,19 @@ class Pilot:
                              f"{t_man - self._obey_since:.1f} s)")
 
     def _stopped(self, t: float, plan_end_s: float, state: dict, below_mps: float = STOPPED_MPS) -> bool:
-        moving = float(np.linalg.norm(self.tm.vel_ned_mps)) > below_mps
+        # an INS's vertical velocity drifts with the accelerometer's bias; the autopilot holds the height by its
+        # barometer meanwhile, so a vehicle steered by the INS has stopped when it has stopped horizontally
+        moving = float(np.linalg.norm(self._velocity()[:2 if self._ins is not None else 3])) > below_mps
         state["since"] = None if moving else (state.get("since") or t)
         return (state["since"] is not None and t - state["since"] > STILL_S) or t - plan_end_s > SETTLE_MAX_S
 
     def _hold(self) -> None:
-        """Zero velocity, heading free: a few setpoints so the vehicle stops whatever it was told last."""
+        """Zero velocity, heading free (level, in GUIDED_NOGPS): a few setpoints so the vehicle stops whatever it
+        was told last."""
         for _ in range(3):
+            if self.flying_mode == GUIDED_NOGPS:
+                self._send_attitude(0.0, 0.0, 0.0, self.tm.heading_rad, 0.5)
+                continue
             self.conn.mav.set_position_target_local_ned_send(0, *self.target, mav.MAV_FRAME_LOCAL_NED,
                                                              VELOCITY_AND_YAW | 0b0100_0000_0000,
                                                              0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)

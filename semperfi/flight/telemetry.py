@@ -23,8 +23,12 @@ STREAMS_HZ = {
     "GLOBAL_POSITION_INT": 5.0,     # height above home
     "EXTENDED_SYS_STATE": 2.0,      # landed or in the air
 }
+# asked for too, but a vehicle may refuse them: whether the autopilot has a GPS fix (without one, the maneuver is
+# flown on attitude targets: mavlink_pilot)
+OPTIONAL_STREAMS_HZ = {"GPS_RAW_INT": 2.0}
 IMU_FALLBACK = "SCALED_IMU"         # for a vehicle that refuses HIGHRES_IMU (mG, mrad/s)
-MSG_ID = {name: getattr(mav, f"MAVLINK_MSG_ID_{name}") for name in (*STREAMS_HZ, IMU_FALLBACK)}
+MSG_ID = {name: getattr(mav, f"MAVLINK_MSG_ID_{name}") for name in (*STREAMS_HZ, *OPTIONAL_STREAMS_HZ, IMU_FALLBACK)}
+GPS_FIX_3D = 3
 G_MPS2 = 9.80665
 
 
@@ -38,6 +42,7 @@ class Telemetry:
     armed: bool | None = None
     custom_mode: int | None = None
     landed_state: int | None = None            # MAV_LANDED_STATE_*; None until EXTENDED_SYS_STATE arrives
+    gps_fix_type: int | None = None            # GPS_FIX_TYPE of the autopilot's GPS; None until GPS_RAW_INT arrives
     height_above_home_m: float | None = None
     pos_ned_m: np.ndarray | None = None
     vel_ned_mps: np.ndarray | None = None
@@ -56,6 +61,8 @@ class Telemetry:
             self.custom_mode = int(msg.custom_mode)
         elif kind == "EXTENDED_SYS_STATE":
             self.landed_state = int(msg.landed_state)
+        elif kind == "GPS_RAW_INT":
+            self.gps_fix_type = int(msg.fix_type)
         elif kind == "GLOBAL_POSITION_INT":
             self.height_above_home_m = float(_finite([msg.relative_alt / 1000.0], kind)[0])
         elif kind == "LOCAL_POSITION_NED":
@@ -81,6 +88,11 @@ class Telemetry:
             return self.landed_state in (mav.MAV_LANDED_STATE_IN_AIR, mav.MAV_LANDED_STATE_TAKEOFF,
                                          mav.MAV_LANDED_STATE_LANDING)
         return self.height_above_home_m is not None and self.height_above_home_m > 1.0
+
+    @property
+    def positioned(self) -> bool:
+        """The autopilot has a 3D GPS fix (or does not say: a vehicle that streams no GPS_RAW_INT)."""
+        return self.gps_fix_type is None or self.gps_fix_type >= GPS_FIX_3D
 
     @property
     def heading_rad(self) -> float:
@@ -109,3 +121,12 @@ def c_nb(roll: float, pitch: float, yaw: float) -> np.ndarray:
     return np.array([[cp * cy, sr * sp * cy - cr * sy, cr * sp * cy + sr * sy],
                      [cp * sy, sr * sp * sy + cr * cy, cr * sp * sy - sr * cy],
                      [-sp, sr * cp, cr * cp]])
+
+
+def quaternion(roll: float, pitch: float, yaw: float) -> list[float]:
+    """The attitude (ZYX Euler angles) as MAVLink's quaternion [w, x, y, z], the rotation c_nb is the matrix of."""
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    return [cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy]

@@ -8,8 +8,14 @@ accepts GUIDED and ignores setpoints, as ArduCopter does); like ArduCopter it ob
 face its travel) only in GUIDED mode, set with SET_MODE or COMMAND_LONG MAV_CMD_DO_SET_MODE (custom mode 4), and
 holds position when velocity setpoints stop for SETPOINT_TIMEOUT_S. Like ArduCopter it sends only HEARTBEAT (1 Hz)
 until asked: MAV_CMD_SET_MESSAGE_INTERVAL sets the rate of HIGHRES_IMU, SCALED_IMU (mG, mrad/s), ATTITUDE,
-LOCAL_POSITION_NED, GLOBAL_POSITION_INT and EXTENDED_SYS_STATE (at most PHYSICS_HZ), all from the true state and
-the IMU error model (which tilts, turns and drifts as SITL's does: multicopter.py).
+LOCAL_POSITION_NED, GLOBAL_POSITION_INT, EXTENDED_SYS_STATE and GPS_RAW_INT (at most PHYSICS_HZ), all from the true
+state and the IMU error model (which tilts, turns and drifts as SITL's does: multicopter.py).
+
+Its GPS can be taken away (`gps_fix_type` below 3), as SemperFi withholds the position from an autopilot while
+spoofing is suspected: then, as ArduCopter, it refuses the modes that need a position (GUIDED, LOITER, RTL), its
+reported position and velocity are dead-reckoned for NO_GPS_DEAD_RECKONING_S and then frozen (the EKF's constant
+position), and GUIDED_NOGPS flies SET_ATTITUDE_TARGET: the tilt gives the acceleration, the thrust is a climb rate
+(0.5 none), and without a target for SETPOINT_TIMEOUT_S it holds level.
 
 The other end is assumed hostile: undecodable bytes, bad CRCs, non-finite or out-of-frame setpoints and unknown
 commands are counted in `rejected` (and logged), never acted on, and never stop the loop. Time runs `time_scale`
@@ -18,6 +24,7 @@ times faster than the wall clock (tests fly a 20 s maneuver in a second or two);
 
 from __future__ import annotations
 
+import collections
 import logging
 import math
 import socket
@@ -29,7 +36,9 @@ import numpy as np
 import pymap3d
 from pymavlink.dialects.v20 import common as mav
 
-from .multicopter import ImuErrors, Multicopter, VehicleParams
+from semperfi.flight import GRAVITY_NED_MPS2
+
+from .multicopter import ImuErrors, Multicopter, VehicleParams, attitude
 
 log = logging.getLogger(__name__)
 
@@ -37,8 +46,12 @@ PHYSICS_HZ = 50                    # one physics step per IMU sample: the fastes
 HEARTBEAT_EVERY = 50               # 1 Hz, the one message sent unasked
 STREAMABLE = {mav.MAVLINK_MSG_ID_HIGHRES_IMU, mav.MAVLINK_MSG_ID_SCALED_IMU, mav.MAVLINK_MSG_ID_ATTITUDE,
               mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED, mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
-              mav.MAVLINK_MSG_ID_EXTENDED_SYS_STATE}
-MODES = {"STABILIZE": 0, "GUIDED": 4, "LOITER": 5, "RTL": 6, "LAND": 9}   # ArduCopter's custom modes
+              mav.MAVLINK_MSG_ID_EXTENDED_SYS_STATE, mav.MAVLINK_MSG_ID_GPS_RAW_INT}
+MODES = {"STABILIZE": 0, "GUIDED": 4, "LOITER": 5, "RTL": 6, "LAND": 9, "GUIDED_NOGPS": 20}   # ArduCopter's
+NEED_POSITION = {MODES["GUIDED"], MODES["LOITER"], MODES["RTL"]}
+NO_GPS_DEAD_RECKONING_S = 7.0      # ArduCopter SITL's EKF: then "stopped aiding"
+CLIMB_MPS, DESCENT_MPS = 2.5, 1.5  # GUIDED_NOGPS thrust 1 and 0 (WPNAV_SPEED_UP, WPNAV_SPEED_DN)
+LEVEL_DRAG_PER_S = 0.3             # a level multicopter slows by drag
 SETPOINT_TIMEOUT_S = 3.0           # ArduCopter stops after 3 s without a velocity command
 MAX_SPEED_MPS = 10.0
 POSITION_GAIN_PER_S = 1.0          # a position setpoint becomes a velocity command toward it
@@ -77,6 +90,12 @@ class MavlinkVehicle:
         self._target_yaw: float | None = None
         self._target_pos: np.ndarray | None = self.vehicle.pos_ned_m.copy()   # LOITER holds where it is
         self._last_setpoint_s = -math.inf
+        self.gps_fix_type = 3                  # set below 3 to take the autopilot's GPS away
+        self._gps_lost_s: float | None = None
+        self._reported = (self.vehicle.pos_ned_m.copy(), np.zeros(3))   # the EKF's view without GPS
+        self._attitude_target: tuple[np.ndarray, float] | None = None   # (c_nb, thrust) in GUIDED_NOGPS
+        self.attitude_targets = 0
+        self.truth = collections.deque(maxlen=600 * PHYSICS_HZ)   # (t_s, position NED), the last 10 min: tests
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -115,12 +134,31 @@ class MavlinkVehicle:
         self._receive()
         if self.on_ground:
             accel, gyro = self.vehicle.rest(1.0 / PHYSICS_HZ)
+        elif self.mode == MODES["GUIDED_NOGPS"]:
+            accel, yaw = self._tilt_command()
+            accel, gyro = self.vehicle.step(np.zeros(3), 1.0 / PHYSICS_HZ, yaw, accel_ned_mps2=accel)
         else:
             velocity, yaw = self._command()
             accel, gyro = self.vehicle.step(velocity, 1.0 / PHYSICS_HZ, yaw)
         self._k += 1
         self.t_s = self._k / PHYSICS_HZ
+        self.truth.append((self.t_s, self.vehicle.pos_ned_m.copy()))
         self._send(self._k, accel, gyro)
+
+    def _tilt_command(self) -> tuple[np.ndarray, float]:
+        """GUIDED_NOGPS: the acceleration the attitude target's tilt gives, the climb rate its thrust asks for (and
+        drag); level with no climb once targets stop."""
+        v = self.vehicle
+        if self._attitude_target is None or self.t_s - self._last_setpoint_s > SETPOINT_TIMEOUT_S:
+            c, thrust = attitude(-GRAVITY_NED_MPS2, v.heading_rad), 0.5
+        else:
+            c, thrust = self._attitude_target
+        climb = (thrust - 0.5) * 2 * (CLIMB_MPS if thrust > 0.5 else DESCENT_MPS)
+        down = v.params.velocity_gain_per_s * (-climb - v.vel_ned_mps[2])
+        along = (G_MPS2 - down) / c[2, 2]          # the thrust whose vertical part gives that
+        accel = np.array([-c[0, 2] * along, -c[1, 2] * along, down])
+        accel[:2] -= LEVEL_DRAG_PER_S * v.vel_ned_mps[:2]
+        return accel, math.atan2(c[1, 0], c[0, 0])
 
     def _command(self) -> tuple[np.ndarray, float | None]:
         """The velocity and heading the autopilot commands now: the GUIDED velocity (until it times out) or toward
@@ -169,6 +207,8 @@ class MavlinkVehicle:
                     self._command_long(msg)
                 elif kind == "SET_POSITION_TARGET_LOCAL_NED":
                     self._setpoint(msg)
+                elif kind == "SET_ATTITUDE_TARGET":
+                    self._attitude(msg)
             if not messages and data:
                 self._reject("a datagram with no complete MAVLink frame")
 
@@ -176,10 +216,13 @@ class MavlinkVehicle:
         if custom_mode not in MODES.values():
             self._reject(f"mode {custom_mode!r}")
             return False
+        if custom_mode in NEED_POSITION and self.gps_fix_type < 3:
+            return False   # ArduCopter: "Mode change to GUIDED failed: requires position"
         if custom_mode != self.mode:
             self._target_pos = self.vehicle.pos_ned_m.copy() if custom_mode != MODES["GUIDED"] else None
             self._target_vel = np.zeros(3)
             self._target_yaw = None
+            self._attitude_target = None
             self._last_setpoint_s = -math.inf
         self.mode = int(custom_mode)
         return True
@@ -243,6 +286,35 @@ class MavlinkVehicle:
         self._last_setpoint_s = self.t_s
         self.setpoints += 1
 
+    def _attitude(self, msg) -> None:
+        if self.on_ground or self.mode != MODES["GUIDED_NOGPS"] or not self.armed:
+            return self._reject("attitude target outside GUIDED_NOGPS in the air")
+        q = np.array(msg.q, float)
+        if not (np.all(np.isfinite(q)) and 0.9 < np.linalg.norm(q) < 1.1 and math.isfinite(msg.thrust)):
+            return self._reject("attitude target with a non-finite or non-unit quaternion")
+        w, x, y, z = q / np.linalg.norm(q)
+        c = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                      [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                      [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+        if c[2, 2] < math.cos(math.radians(45)):
+            return self._reject("attitude target tilted beyond 45 deg")
+        self._attitude_target = (c, min(1.0, max(0.0, float(msg.thrust))))
+        self._last_setpoint_s = self.t_s
+        self.attitude_targets += 1
+
+    def _ekf_view(self) -> tuple[np.ndarray, np.ndarray]:
+        """The position and velocity the autopilot reports: the truth with GPS; without it, dead-reckoned (true here)
+        for NO_GPS_DEAD_RECKONING_S, then frozen with zero velocity."""
+        v = self.vehicle
+        if self.gps_fix_type >= 3:
+            self._gps_lost_s = None
+        elif self._gps_lost_s is None:
+            self._gps_lost_s = self.t_s
+        if self._gps_lost_s is None or self.t_s - self._gps_lost_s < NO_GPS_DEAD_RECKONING_S:
+            self._reported = (v.pos_ned_m.copy(), v.vel_ned_mps.copy())
+            return self._reported
+        return self._reported[0], np.zeros(3)
+
     # -- what goes out -----------------------------------------------------------------------------------------
     def _send(self, k: int, accel_mps2: np.ndarray, gyro_rps: np.ndarray) -> None:
         m, v = self.mav, self.vehicle
@@ -252,8 +324,8 @@ class MavlinkVehicle:
                 base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (mav.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0)
                 m.heartbeat_send(mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_ARDUPILOTMEGA, base, self.mode,
                                  mav.MAV_STATE_ACTIVE)
-            n, e, d = v.pos_ned_m
-            vn, ve, vd = v.vel_ned_mps
+            (n, e, _), (vn, ve, vd) = self._ekf_view()
+            d = v.pos_ned_m[2]   # the barometer's, with or without GPS
             if self._due(k, mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT):
                 lat, lon, alt = pymap3d.ned2geodetic(n, e, d, *self.origin)
                 hdg = int(round(math.degrees(v.heading_rad) * 100)) % 36000
@@ -266,6 +338,12 @@ class MavlinkVehicle:
             if self._due(k, mav.MAVLINK_MSG_ID_EXTENDED_SYS_STATE):
                 m.extended_sys_state_send(mav.MAV_VTOL_STATE_UNDEFINED, mav.MAV_LANDED_STATE_ON_GROUND
                                           if self.on_ground else mav.MAV_LANDED_STATE_IN_AIR)
+            if self._due(k, mav.MAVLINK_MSG_ID_GPS_RAW_INT):
+                lat, lon, alt = pymap3d.ned2geodetic(*v.pos_ned_m, *self.origin)
+                fixed = self.gps_fix_type >= 3
+                m.gps_raw_int_send(int(round(self.t_s * 1e6)), self.gps_fix_type, int(round(lat * 1e7)) * fixed,
+                                   int(round(lon * 1e7)) * fixed, int(round(alt * 1e3)) * fixed, 80 if fixed else 9999,
+                                   120 if fixed else 9999, 0, 0, 12 if fixed else 0)
             if self._due(k, mav.MAVLINK_MSG_ID_HIGHRES_IMU):
                 m.highres_imu_send(int(round(self.t_s * 1e6)), *accel_mps2.tolist(), *gyro_rps.tolist(),
                                    0, 0, 0, 0, 0, 0, 0, 0b111111)

@@ -96,9 +96,12 @@ class Multicopter:
         return np.array([math.atan2(c[2, 1], c[2, 2]), -math.asin(max(-1.0, min(1.0, c[2, 0]))),
                          math.atan2(c[1, 0], c[0, 0])])
 
-    def step(self, setpoint_vel_ned_mps, dt_s: float, yaw_rad: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def step(self, setpoint_vel_ned_mps, dt_s: float, yaw_rad: float | None = None,
+             accel_ned_mps2=None) -> tuple[np.ndarray, np.ndarray]:
+        """accel_ned_mps2: the acceleration asked for instead of a velocity (an attitude target's tilt)."""
         p, imu, rng = self.params, self.imu, self.rng
-        a_cmd = p.velocity_gain_per_s * (np.asarray(setpoint_vel_ned_mps, float) - self.vel_ned_mps)
+        a_cmd = (p.velocity_gain_per_s * (np.asarray(setpoint_vel_ned_mps, float) - self.vel_ned_mps)
+                 if accel_ned_mps2 is None else np.array(accel_ned_mps2, float))
         norm = np.linalg.norm(a_cmd)
         if norm > p.max_accel_mps2:
             a_cmd *= p.max_accel_mps2 / norm
