@@ -264,20 +264,30 @@ def test_a_hover_stirred_up_is_settled_and_tried_again_not_the_maneuver_aborted(
     assert flown.ins.t_s[-1] >= maneuver.duration_s
 
 
-def test_without_gps_the_maneuver_is_flown_on_attitude_targets_and_the_mode_given_back_with_the_fix(vehicle):
+@pytest.mark.parametrize("watched", [False])
+def test_without_gps_the_maneuver_is_flown_on_attitude_targets_and_the_mode_given_back_with_the_fix(vehicle, watched):
     """Issue 24: while SemperFi withholds the position (spoofing suspected) ArduCopter has no GPS; in GUIDED its EKF
     dead-reckons ~7 s and its failsafe lands the vehicle (SITL did, aborting the maneuver). The flight side then
     flies the maneuver in GUIDED_NOGPS on attitude targets, steering by its own INS, its track within the INS's
-    error bound of the truth; the mode it found is refused without a position and given back once the fix returns."""
+    error bound of the truth; the mode it found is refused without a position and given back once the fix returns.
+    Not watched before the GPS went, its INS is calibrated on a hover without GPS (watched: the next test, and on
+    ArduCopter SITL in tests/test_sitl.py, where this vehicle's IMU under attitude targets is not faithful enough:
+    off its own trajectory by ~1 m in 16 s at 50 Hz even without errors, a second-order error of its 50 Hz steps
+    that shrinks 16x at 200 Hz)."""
+    from semperfi.flight.mavlink_pilot import CAL_SPAN_S, CAL_WINDOW_S
     v, port = vehicle
-    v.gps_fix_type = 1
     pilot = Pilot(f"udpout:127.0.0.1:{port}", timeout_s=10)
+    if watched:
+        pilot.watch()
+        time.sleep((CAL_SPAN_S + CAL_WINDOW_S + 3.0) / TIME_SCALE)
+    v.gps_fix_type = 1
     try:
         status = pilot.prepare()
         maneuver = draw(ManeuverLimits(), track_heading_rad=status.track_heading_rad,
                         altitude_m=status.height_above_home_m, rng=random.Random(8))
         flown = pilot.fly(maneuver)
         assert flown.without_gps and v.attitude_targets > 100 and v.setpoints == 0
+        assert (flown.ins_age_s > 2.0) == watched, flown.ins_age_s
         assert v.mode == MODES["GUIDED_NOGPS"] and pilot.return_mode == MODES["LOITER"], \
             "LOITER needs a position: the vehicle is held until it has one"
         v.gps_fix_type = 3
@@ -290,11 +300,11 @@ def test_without_gps_the_maneuver_is_flown_on_attitude_targets_and_the_mode_give
     ins = flown.ins
     at = np.column_stack([np.interp(t0 + ins.t_s, truth[:, 0], truth[:, k]) for k in (1, 2, 3)])
     flown_m = at - at[0]
-    assert np.hypot(*flown_m[-1, :2]) >= 20.0, f"the vehicle moved {np.hypot(*flown_m[-1, :2]):.1f} m"
     plan_end = np.array([maneuver.north_m[-1], maneuver.east_m[-1], maneuver.down_m[-1]])
-    assert np.linalg.norm(flown_m[-1] - plan_end) < 8.0, (flown_m[-1], plan_end)   # steered by the INS
+    assert maneuver.end_distance_m > 15.0 and np.linalg.norm(flown_m[-1] - plan_end) < 5.0, \
+        (flown_m[-1], plan_end)   # steered by the INS
     drift = np.linalg.norm(ins.pos_ned_m - flown_m, axis=1)
-    length_s = ins.t_s[-1]
+    length_s = ins.t_s[-1] + flown.ins_age_s   # the INS ran this long (from before the maneuver, when watched)
     # one hover, no second to measure the gyro's drift: its drift tilts gravity by g drift t^4 / 24 more
     imu = ImuErrors()
     bound_m = 3.0 * _ins_rms_error_m(imu, length_s) + 9.80665 * imu.gyro_drift_rps_per_s * length_s ** 4 / 24
@@ -316,3 +326,36 @@ def test_without_a_position_after_the_maneuver_the_vehicle_lands(vehicle):
     finally:
         pilot.close()
     assert v.mode == MODES["LAND"] and "\n" not in str(failed.value)
+
+
+def test_watched_before_the_gps_went_the_ins_is_calibrated_on_the_gps_aided_flight():
+    """The link's history of a GPS-aided hover: a gyro whose bias drifts, the autopilot's true attitude and velocity,
+    the GPS reported lost at 30 s. The calibration ends CAL_MARGIN_S before the loss, finds the bias and its drift
+    from two windows, and starts the INS from the autopilot's state there."""
+    from semperfi.flight import mavlink_pilot as mp
+    from semperfi.flight.telemetry import c_nb
+    pilot = mp.Pilot(f"udpin:127.0.0.1:{_free_port()}", timeout_s=1.0)
+    try:
+        rng = np.random.default_rng(3)
+        bias0, drift = np.array([4e-4, -2e-4, 3e-4]), np.array([1.5e-5, 1.5e-5, -1e-5])
+        rpy = np.array([0.02, -0.01, 0.6])
+        c = c_nb(*rpy)
+        f_body = c.T @ np.array([0.0, 0.0, -9.80665])   # a hover's specific force
+        h = pilot._history
+        for k in range(int(40 * 50)):
+            t = 5.0 + k / 50
+            h["imu"].append((t, f_body + rng.normal(0, 0.02, 3), bias0 + drift * t + rng.normal(0, 3e-4, 3)))
+            h["att"].append((t, rpy, np.zeros(3)))
+            if k % 5 == 0:
+                h["pos"].append((t, np.array([1.0, 2.0, -30.0]), np.array([0.3, -0.2, 0.0])))
+            if k % 25 == 0:
+                h["gps"].append((t, t < 35.0))
+        bias, end, c0, v0, p0, since_end = pilot._calibration_before_loss()
+    finally:
+        pilot.close()
+    assert end == pytest.approx(35.0 - mp.CAL_MARGIN_S)
+    assert np.allclose(c0, c) and np.allclose(v0, [0.3, -0.2, 0.0]) and np.allclose(p0, [1.0, 2.0, -30.0])
+    # a 5 s window of 3e-4 rad/s/sqrt(Hz) noise fixes a slope to ~1e-4 rad/s: within 3 of those at the end
+    assert np.all(np.abs(bias.gyro_bias_rps - (bias0 + drift * end)) < 3e-4), bias.gyro_bias_rps - bias0 - drift * end
+    assert np.all(np.abs(bias.gyro_drift_rps2 - drift) < 3e-5), bias.gyro_drift_rps2
+    assert since_end[0][0] >= end and since_end[-1][0] == pytest.approx(44.98)

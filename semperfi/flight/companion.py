@@ -17,7 +17,6 @@ import time
 
 import numpy as np
 
-from .deadreckoning import ins_error_bound_m
 from .link import MAX_WHY_CHARS, LinkError, LinkPeer, alarm_lines_of_sight, alarm_required_spread_m
 from .maneuver import ManeuverLimits, draw, spread_m, unit_ned
 from .mavlink_pilot import Pilot, PilotError
@@ -42,6 +41,14 @@ def serve(port: int, key: bytes, vehicle_url: str, report, host: str = "127.0.0.
         srv.close()
     report({"event": "receiver_connected", "address": address})
     flown = 0
+    # one link to the vehicle for the whole session, watched from now on: a maneuver flown after the autopilot lost
+    # its GPS (SemperFi withholds it while spoofing is suspected) is calibrated on the GPS-aided seconds before
+    pilot = None
+    try:
+        pilot = Pilot(vehicle_url, timeout_s=10.0)
+        pilot.watch()   # in the background: prepare() waits for it
+    except PilotError as exc:
+        report({"event": "vehicle_not_watched", "error": str(exc)})   # the alarm connects instead
     try:
         while flown < max_maneuvers and peer.closed is None:
             msg = peer.wait(1.0)
@@ -54,8 +61,8 @@ def serve(port: int, key: bytes, vehicle_url: str, report, host: str = "127.0.0.
                 report({"event": "alarm_rejected", "error": str(exc)})
                 continue
             lines_of_sight = [unit_ned(az, el) for _, az, el in sky]
-            pilot = Pilot(vehicle_url, timeout_s=10.0)
             try:
+                pilot = pilot or Pilot(vehicle_url, timeout_s=10.0)
                 status = pilot.prepare()   # the maneuver is drawn for where the vehicle is and how high
                 maneuver = draw(ManeuverLimits(), track_heading_rad=status.track_heading_rad,
                                 altitude_m=status.height_above_home_m,
@@ -71,27 +78,25 @@ def serve(port: int, key: bytes, vehicle_url: str, report, host: str = "127.0.0.
             except (PilotError, ValueError, RuntimeError) as exc:
                 report({"event": "maneuver_failed", "error": str(exc)})
                 peer.send("maneuver_failed", {"why": str(exc)[:MAX_WHY_CHARS]})   # it waits for no track now
-                _regain(pilot, report)
-                pilot.close()
+                if pilot is not None:
+                    _regain(pilot, report)
                 break
-            try:
-                ins, t0 = result.ins, result.start_time_boot_s
-                track = {"maneuver_id": maneuver_id, "t_s": [round(t0 + t, 3) for t in ins.t_s.tolist()],
-                         "north_m": [round(x, 3) for x in ins.pos_ned_m[:, 0].tolist()],
-                         "east_m": [round(x, 3) for x in ins.pos_ned_m[:, 1].tolist()],
-                         "down_m": [round(x, 3) for x in ins.pos_ned_m[:, 2].tolist()],
-                         "drift_bound_m": round(float(ins_error_bound_m(ins.t_s[-1] - ins.t_s[0],
-                                                                        result.without_gps)), 2)}
-                peer.send("maneuver_done", track)
-                report({"event": "maneuver_done", "start_s": round(t0, 2), "end_s": track["t_s"][-1],
-                        "without_gps": result.without_gps, "track": track})
-                flown += 1
-                _regain(pilot, report)   # the verdict gives the autopilot its position back meanwhile
-            finally:
-                pilot.close()
+            ins, t0 = result.ins, result.start_time_boot_s
+            track = {"maneuver_id": maneuver_id, "t_s": [round(t0 + t, 3) for t in ins.t_s.tolist()],
+                     "north_m": [round(x, 3) for x in ins.pos_ned_m[:, 0].tolist()],
+                     "east_m": [round(x, 3) for x in ins.pos_ned_m[:, 1].tolist()],
+                     "down_m": [round(x, 3) for x in ins.pos_ned_m[:, 2].tolist()],
+                     "drift_bound_m": round(result.error_bound_m, 2)}
+            peer.send("maneuver_done", track)
+            report({"event": "maneuver_done", "start_s": round(t0, 2), "end_s": track["t_s"][-1],
+                    "without_gps": result.without_gps, "ins_age_s": round(result.ins_age_s, 2), "track": track})
+            flown += 1
+            _regain(pilot, report)   # the verdict gives the autopilot its position back meanwhile
             verdict = _await(peer, "verdict", VERDICT_WAIT_S)
             report({"event": "verdict", "payload": verdict})
     finally:
+        if pilot is not None:
+            pilot.close()
         peer.close()
 
 

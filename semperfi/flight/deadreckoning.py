@@ -95,10 +95,11 @@ START_VELOCITY_ERROR_MPS = 0.05        # the autopilot's velocity at the start (
 ACCEL_RESIDUAL_MPS2 = 0.005            # accelerometer bias and start tilt left after the hover's correction
 GYRO_RESIDUAL_RPS = 1.5e-4             # gyro bias left after the two hovers' line (SITL's drifts 0.015 mrad/s^2)
 FLOOR_M = 0.3                          # sample timing: 20 ms at 4 m/s, and the truth's own tagging
-# without GPS (the maneuver flown in GUIDED_NOGPS) the autopilot's velocity at the start is dead-reckoned and the
-# attitude the hover measures the gyro against drifts: ArduCopter SITL, GPS switched off (scripts/sitl-fly
-# --without-gps), 15-21 s tracks ended 1.8-26.8 m off (11 maneuvers; a start velocity 0.09-0.37 m/s off, gyro biases
-# 0.1-2 mrad/s off); this bound held all of them (26.8 m after 20.8 s against 28.1)
+# A flight side that did not watch the GPS-aided flight before the GPS was lost (mavlink_pilot: its calibration is
+# then a hover without GPS) starts from the autopilot's dead-reckoned velocity and measures the gyro against an
+# attitude that drifts: ArduCopter SITL, GPS switched off, 15-21 s tracks ended 1.8-26.8 m off (11 maneuvers; a
+# start velocity 0.09-0.37 m/s off, gyro biases 0.1-2 mrad/s off); this bound held all of them (26.8 m after 20.8 s
+# against 28.1). Watched, its INS starts on the GPS-aided flight and the bound above holds, counted from there.
 NO_GPS_START_VELOCITY_ERROR_MPS = 0.6
 NO_GPS_ACCEL_RESIDUAL_MPS2 = 0.03
 NO_GPS_GYRO_RESIDUAL_RPS = 6e-4

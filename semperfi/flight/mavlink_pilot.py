@@ -23,7 +23,9 @@ at its start, its biases taken off.
 
 from __future__ import annotations
 
+import collections
 import math
+import threading
 import time
 from dataclasses import dataclass
 
@@ -33,7 +35,7 @@ from pymavlink.dialects.v20 import common as mav
 
 from ..address import parse_address
 from ..errors import BadInput
-from .deadreckoning import HoverBias, InsTrack, Strapdown, bias_between, hover_bias, integrate
+from .deadreckoning import HoverBias, InsTrack, Strapdown, bias_between, hover_bias, ins_error_bound_m, integrate
 from .maneuver import Maneuver, ManeuverLimits
 from .telemetry import (G_MPS2, IMU_FALLBACK, MSG_ID, OPTIONAL_STREAMS_HZ, STREAMS_HZ, Telemetry, TelemetryError,
                         c_nb, quaternion)
@@ -46,12 +48,28 @@ SETPOINT_HZ = 10.0
 VELOCITY_AND_YAW = 0b0000_1001_1100_0111  # type_mask: use vx, vy, vz and yaw; ignore position, accel, yaw rate
 ATTITUDE_ONLY = 0b0000_0111               # SET_ATTITUDE_TARGET type_mask: ignore the body rates
 ATTITUDE_HZ = 25.0
-# the velocity loop closed on the INS in GUIDED_NOGPS: acceleration = gain x velocity error, under a tilt limit
+# the velocity loop closed on the INS in GUIDED_NOGPS: acceleration = gain x velocity error + integral gain x its
+# integral (a level multicopter is slowed by drag: without it SITL flew 8-12 m short of a 15 s plan), under a tilt
+# limit
 VELOCITY_GAIN_PER_S = 1.0
+VELOCITY_INTEGRAL_GAIN_PER_S2 = 0.4
+INTEGRAL_MAX_MPS2 = 1.5
+INTEGRATE_BELOW_MPS = 1.0
 MAX_TILT_ACCEL_MPS2 = 3.0                 # ~17 deg
 # ArduCopter's thrust in GUIDED_NOGPS is a climb rate: 0.5 none, 1 WPNAV_SPEED_UP, 0 WPNAV_SPEED_DN (their defaults)
 CLIMB_MPS, DESCENT_MPS = 2.5, 1.5
 REGAIN_TRY_S = 1.0                        # how often the mode before the maneuver is asked for again (regain)
+# What the link heard lately is kept (a reader thread takes every message in, whether or not anyone waits for it), so
+# that when the autopilot loses its GPS the flight side still has the last GPS-aided seconds to calibrate by.
+INBOX_MAX = 8000                          # messages not yet taken (~60 s of the streams asked for)
+HISTORY_S = 40.0                          # the IMU, attitude, position and GPS state kept, vehicle time
+# calibration before the GPS was lost: two windows of the GPS-aided flight, CAL_WINDOW_S each, their mid-times
+# CAL_SPAN_S apart (the gyro's drift between them), ending CAL_MARGIN_S before the first report of no fix (a takeover
+# drags the fix for up to a second before SemperFi alarms: ArduCopter SITL, +3 dB at 10 m/s, alarmed 0.5-0.7 s into
+# the drag; its EKF's velocity is the INS's start)
+CAL_WINDOW_S = 5.0
+CAL_SPAN_S = 15.0
+CAL_MARGIN_S = 2.0
 HOVER_S = 3.0                             # the bias-measuring hovers before and after the maneuver (vehicle time)
 HOVER_MAX_SPEED_MPS = 1.0                 # a vehicle drifting faster than this in a zero-velocity hover disobeys
 STILL_MPS = 0.5                           # the hover starts once the vehicle has been this slow for STILL_S
@@ -94,7 +112,15 @@ class FlownManeuver:
     reported_ned_m: np.ndarray     # LOCAL_POSITION_NED during the maneuver (the autopilot's view; for the record)
     reported_t_s: np.ndarray
     bias: HoverBias                # what the hover measured and the track took off
-    without_gps: bool = False      # flown in GUIDED_NOGPS: the autopilot had no GPS fix (a looser error bound)
+    without_gps: bool = False      # flown in GUIDED_NOGPS: the autopilot had no GPS fix
+    bound_without_gps: bool = False    # its biases measured in a hover without GPS: the looser error bound
+    ins_age_s: float = 0.0         # how long the INS had run at the start (started before the GPS was lost)
+
+    @property
+    def error_bound_m(self) -> float:
+        """How far the track may be from the truth at its end (deadreckoning.ins_error_bound_m)."""
+        length_s = float(self.ins.t_s[-1] - self.ins.t_s[0])
+        return float(ins_error_bound_m(self.ins_age_s + length_s, self.bound_without_gps))
 
 
 def check_vehicle_url(url: str) -> str:
@@ -121,40 +147,93 @@ class Pilot:
         self._att: list = []        # (t_s, rpy, rates)
         self._pos: list = []        # (t_s, ned, vel)
         self._recording = False
+        n = int(HISTORY_S * max(STREAMS_HZ.values()) * 1.2)
+        self._history = {"imu": collections.deque(maxlen=n), "att": collections.deque(maxlen=n),
+                         "pos": collections.deque(maxlen=n), "gps": collections.deque(maxlen=n)}
+        self._inbox: collections.deque = collections.deque(maxlen=INBOX_MAX)
+        self._arrived = threading.Condition()
+        self._closing = threading.Event()
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+        self._asked = False
+        self._optional: set = set()
+        self._watcher: threading.Thread | None = None
         self.flying_mode = GUIDED   # GUIDED_NOGPS when the autopilot has no GPS fix (fly)
         self.return_mode: int | None = None   # the mode to give back once the autopilot has a position (regain)
         self._ins: Strapdown | None = None    # steering in GUIDED_NOGPS, from the maneuver start
+        self._steer_integral = np.zeros(2)    # the velocity loop's integral, and when it was last updated
+        self._steered_s: float | None = None
         self._ins_p0 = np.zeros(3)
         self._ins_log: list = []    # (t_s, ned, vel) of the INS, as _pos is of the autopilot
 
     def close(self) -> None:
+        self._closing.set()   # a watcher still connecting gives up at its next message wait
+        if self._watcher is not None:
+            self._watcher.join(2.0)
+        self._reader.join(2.0)
         self.conn.close()
 
     # -- receiving ---------------------------------------------------------------------------------------------
+    def _read(self) -> None:
+        """The reader thread: every message into the inbox with its arrival time (the oldest dropped beyond
+        INBOX_MAX: what nobody took for a minute is history, not news)."""
+        while not self._closing.is_set():
+            try:
+                msg = self.conn.recv_match(blocking=True, timeout=0.2)
+            except Exception:   # noqa: BLE001 -- garbage on the wire is skipped, not trusted; a closed link idles
+                time.sleep(0.01)
+                continue
+            if msg is None or msg.get_type() == "BAD_DATA":
+                continue
+            with self._arrived:
+                self._inbox.append((time.monotonic(), msg))
+                self._arrived.notify()
+
     def _next(self, deadline: float, waiting_for: str, since: float):
         """The next message (telemetry updated, IMU and attitude recorded), or PilotError at the deadline, naming
         what was awaited and for how long it truly was."""
         while True:
             now = time.monotonic()
-            if now >= deadline:
+            if now >= deadline or self._closing.is_set():
                 raise PilotError(f"no {waiting_for} from the vehicle in {now - since:.1f} s")
-            try:
-                msg = self.conn.recv_match(blocking=True, timeout=min(0.2, deadline - now))
-            except Exception:   # noqa: BLE001 -- garbage on the wire is skipped, not trusted
-                continue
-            if msg is None or msg.get_type() == "BAD_DATA":
-                continue
+            with self._arrived:
+                if not self._inbox:
+                    self._arrived.wait(min(0.2, deadline - now))
+                    continue
+                arrived, msg = self._inbox.popleft()
             if self.target is not None and (msg.get_srcSystem() != self.target[0] or (
                     msg.get_type() == "HEARTBEAT" and msg.get_srcComponent() != self.target[1])):
                 # another system on the link (a ground station), or a camera's HEARTBEAT, is not the autopilot
                 continue
             try:
-                imu = self.tm.update(msg, time.monotonic())
+                imu = self.tm.update(msg, arrived)
             except TelemetryError as exc:
                 raise PilotError(str(exc)) from None
+            self._remember(msg, imu)
             if self._recording:
                 self._record(msg, imu)
             return msg
+
+    def _catch_up(self) -> None:
+        """Take in everything the link heard while nobody waited (the companion between alarms): the telemetry
+        and the history then stand as of now, and the next message awaited is a fresh one."""
+        with self._arrived:
+            backlog = len(self._inbox)
+        since = time.monotonic()
+        for _ in range(backlog):
+            self._next(since + self.timeout_s, "message", since)
+
+    def _remember(self, msg, imu) -> None:
+        kind, h = msg.get_type(), self._history
+        if imu is not None and kind == self.imu_stream:
+            if not h["imu"] or imu[0] > h["imu"][-1][0]:
+                h["imu"].append(imu)
+        elif kind == "ATTITUDE":
+            h["att"].append((self.tm.attitude_t_s, self.tm.attitude_rpy_rad, self.tm.attitude_rates_rps))
+        elif kind == "LOCAL_POSITION_NED":
+            h["pos"].append((self.tm.pos_t_s, self.tm.pos_ned_m, self.tm.vel_ned_mps))
+        elif kind == "GPS_RAW_INT" and self.tm.attitude_t_s is not None:
+            h["gps"].append((self.tm.attitude_t_s, self.tm.positioned))   # GPS_RAW_INT's own time is not boot time
 
     def _record(self, msg, imu) -> None:
         kind = msg.get_type()
@@ -212,9 +291,27 @@ class Pilot:
                                      f"{time.monotonic() - since:.1f} s") from None
         raise PilotError(f"command {command} was never acknowledged")
 
+    def watch(self) -> None:
+        """Connect and ask for the streams on a thread of its own, waiting for none of them (a vehicle on the
+        ground may not stream a position yet): from then on the link's last HISTORY_S are kept, so that a maneuver
+        flown after the autopilot lost its GPS is calibrated on the GPS-aided flight before it (the companion
+        watches from the start). prepare() waits for it; what it could not do, prepare() does."""
+        def connect_and_ask():
+            try:
+                self.connect()
+                self._ask_streams()
+            except PilotError:
+                pass
+        self._watcher = threading.Thread(target=connect_and_ask, daemon=True)
+        self._watcher.start()
+
     def request_streams(self) -> None:
         """SET_MESSAGE_INTERVAL for each stream read (HIGHRES_IMU, or SCALED_IMU from a vehicle refusing it), then
         wait until every one has arrived."""
+        self._ask_streams()
+        self._await_streams()
+
+    def _ask_streams(self) -> None:
         for name, hz in STREAMS_HZ.items():
             result = self.command(mav.MAV_CMD_SET_MESSAGE_INTERVAL, MSG_ID[name], 1e6 / hz)
             if result != mav.MAV_RESULT_ACCEPTED and name == "HIGHRES_IMU":
@@ -224,9 +321,14 @@ class Pilot:
             if result != mav.MAV_RESULT_ACCEPTED:
                 raise PilotError(f"vehicle refused to stream {name} (MAV_RESULT {result})")
         accepted = mav.MAV_RESULT_ACCEPTED
-        optional = {name for name, hz in OPTIONAL_STREAMS_HZ.items()
-                    if self.command(mav.MAV_CMD_SET_MESSAGE_INTERVAL, MSG_ID[name], 1e6 / hz) == accepted}
-        wanted = {self.imu_stream, *(n for n in STREAMS_HZ if n != "HIGHRES_IMU"), *optional}
+        self._optional = {name for name, hz in OPTIONAL_STREAMS_HZ.items()
+                          if self.command(mav.MAV_CMD_SET_MESSAGE_INTERVAL, MSG_ID[name], 1e6 / hz) == accepted}
+        self._asked = True
+
+    def _await_streams(self) -> None:
+        wanted = {self.imu_stream, *(n for n in STREAMS_HZ if n != "HIGHRES_IMU"), *self._optional}
+        if not self.tm.positioned:
+            wanted.discard("LOCAL_POSITION_NED")   # ArduCopter sends none once its EKF has no position
         asked = time.monotonic()
         seen = set()
         deadline = asked + self.timeout_s
@@ -240,10 +342,17 @@ class Pilot:
 
     def prepare(self) -> VehicleStatus:
         """Connect, ask for the streams and check the vehicle can maneuver: armed, in the air, high enough."""
-        self.connect()
+        if self._watcher is not None:
+            self._watcher.join()   # its waits have their deadlines
+            self._watcher = None
+        self._catch_up()
+        if self.target is None:
+            self.connect()
         if not self.tm.armed:   # said first: a vehicle on the bench may never stream a position
             raise PilotError("vehicle is disarmed: arm it and take off before a maneuver")
-        self.request_streams()
+        if not self._asked:
+            self._ask_streams()
+        self._await_streams()
         self._wait_for({"HEARTBEAT"}, "HEARTBEAT")   # armed state and mode as of now
         tm, low = self.tm, self.limits.min_altitude_m
         if not tm.armed:
@@ -270,6 +379,7 @@ class Pilot:
         track of it (prepare() first, or here)."""
         if self.target is None:
             self.prepare()
+        self._catch_up()
         height = self.tm.height_above_home_m
         lowest = height - float(np.max(maneuver.down_m))
         if lowest < self.limits.min_altitude_m - HEIGHT_MARGIN_M:
@@ -337,6 +447,9 @@ class Pilot:
     def _fly_legs(self, maneuver: Maneuver) -> FlownManeuver:
         yaw = self.tm.heading_rad
         self._imu, self._att, self._pos, self._ins_log = [], [], [], []
+        calibration = self._calibration_before_loss() if self.flying_mode == GUIDED_NOGPS else None
+        if calibration is not None:
+            return self._fly_on_ins(maneuver, yaw, *calibration)
         self._recording = True
         try:
             before, before_t = self._hover_until_still(yaw)
@@ -347,9 +460,11 @@ class Pilot:
             if self.flying_mode == GUIDED_NOGPS:
                 self._ins = Strapdown(start, self._imu[-1][1], self._imu[-1][2], c0, v0, before)
                 self._ins_p0 = p0
+                self._steer_integral, self._steered_s = np.zeros(2), None
             plan = _PlannedVelocity(maneuver)
             self._obey_since = None
-            self._stream(lambda t: plan.setpoint(t - start), yaw, until=lambda t: t >= start + maneuver.duration_s,
+            self._stream(lambda t: self._asked_velocity(plan, t - start), yaw,
+                         until=lambda t: t >= start + maneuver.duration_s,
                          guard=lambda t: self._maneuvering(t - start, plan, p0))
             stopped = {}
             self._stream(lambda t: np.zeros(3), yaw,
@@ -369,9 +484,92 @@ class Pilot:
         t = np.array([s[0] for s in imu]) - start
         ins = integrate(t, np.array([s[1] for s in imu]), np.array([s[2] for s in imu]), c_nb0=c0,
                         vel0_ned_mps=v0, bias=bias)
-        pos = [(pt - start, ned) for pt, ned, _ in self._pos if start <= pt <= imu[-1][0]]
-        return FlownManeuver(ins, start, np.array([p for _, p in pos]) - p0, np.array([pt for pt, _ in pos]), bias,
-                             self.flying_mode == GUIDED_NOGPS)
+        return FlownManeuver(ins, start, *self._reported(start, imu[-1][0], p0), bias,
+                             self.flying_mode == GUIDED_NOGPS, bound_without_gps=self.flying_mode == GUIDED_NOGPS)
+
+    def _reported(self, start: float, end: float, p0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The autopilot's positions (LOCAL_POSITION_NED) from start to end, from p0 (none without a position)."""
+        pos = [(pt - start, ned) for pt, ned, _ in self._pos if start <= pt <= end]
+        return np.array([p for _, p in pos]).reshape(-1, 3) - p0, np.array([pt for pt, _ in pos])
+
+    def _calibration_before_loss(self):
+        """From the link's history: the IMU's biases over the last GPS-aided seconds before the autopilot reported
+        no fix (two windows CAL_SPAN_S apart, or the later alone), and the autopilot's attitude, velocity and
+        position at their end, CAL_MARGIN_S before the loss (a spoofer dragging the fix before the alarm bends the
+        very last of them). None when the history does not hold them (the GPS was lost before the link was
+        watched, or not lost at all)."""
+        h = {k: list(v) for k, v in self._history.items()}
+        lost = None
+        for t, positioned in reversed(h["gps"]):
+            if positioned:
+                break
+            lost = t
+        if lost is None or not any(positioned for _, positioned in h["gps"]):
+            return None
+        end = lost - CAL_MARGIN_S
+        late = self._window(h, end - CAL_WINDOW_S, end)
+        if late is None:
+            return None
+        early = self._window(h, end - CAL_SPAN_S - CAL_WINDOW_S, end - CAL_SPAN_S)
+        bias = late[0] if early is None else bias_between(early[0], late[0], early[1], late[1], end)
+        at = [a for a in h["att"] if a[0] <= end][-1]
+        pos = np.array([(pt, *ned, *vel) for pt, ned, vel in h["pos"]])
+        state = [float(np.interp(end, pos[:, 0], pos[:, k])) for k in range(1, 7)]
+        since_end = [s for s in h["imu"] if s[0] >= end]
+        if not since_end:
+            return None
+        return bias, end, c_nb(*at[1]), np.array(state[3:]), np.array(state[:3]), since_end
+
+    @staticmethod
+    def _window(h: dict, t0: float, t1: float):
+        """hover_bias over the history from t0 to t1 and its mid-time; None when the history does not cover it."""
+        imu = [s for s in h["imu"] if t0 <= s[0] <= t1]
+        att = [a for a in h["att"] if t0 - 0.1 <= a[0] <= t1 + 0.1]
+        pos = [p for p in h["pos"] if t0 - 0.2 <= p[0] <= t1 + 0.2]
+        if len(imu) < 0.8 * (t1 - t0) * STREAMS_HZ["HIGHRES_IMU"] or len(att) < 10 or len(pos) < 2 or \
+                pos[0][0] > t0 or pos[-1][0] < t1:
+            return None
+        try:
+            bias = hover_bias([s[0] for s in imu], [s[1] for s in imu], [s[2] for s in imu], [a[0] for a in att],
+                              [a[1] for a in att], [p[0] for p in pos], [p[2] for p in pos])
+        except ValueError:
+            return None
+        return bias, 0.5 * (imu[0][0] + imu[-1][0])
+
+    def _fly_on_ins(self, maneuver: Maneuver, yaw: float, bias: HoverBias, end: float, c0, v0, p0,
+                    since_end: list) -> FlownManeuver:
+        """The maneuver without GPS, on an INS started where the GPS-aided flight ended (the link's history): no
+        hover needed, its biases are known; settled, flown and stopped on the INS's velocity. The track is the
+        INS's own, from the maneuver's start."""
+        first = since_end[0]
+        self._ins = Strapdown(first[0], first[1], first[2], c0, v0, bias)
+        self._ins_p0 = p0
+        self._steer_integral, self._steered_s = np.zeros(2), None
+        for t, f, w in since_end[1:]:
+            self._ins.step(t, f, w)
+        self._recording = True
+        try:
+            self._settle(yaw)
+            start = self._ins.t_s
+            at_start = len(self._ins_log)
+            p_start, v_start = self._position().copy(), self._ins.vel_ned_mps.copy()
+            plan = _PlannedVelocity(maneuver)
+            self._obey_since = None
+            self._stream(lambda t: self._asked_velocity(plan, t - start), yaw,
+                         until=lambda t: t >= start + maneuver.duration_s,
+                         guard=lambda t: self._maneuvering(t - start, plan, p_start))
+            stopped = {}
+            self._stream(lambda t: np.zeros(3), yaw,
+                         until=lambda t: self._stopped(t, start + maneuver.duration_s, stopped),
+                         guard=lambda t: self._maneuvering(None, plan, p_start))
+        finally:
+            self._recording = False
+        log = [(start, p_start, v_start)] + self._ins_log[at_start:]
+        ins = InsTrack(np.array([e[0] for e in log]) - start, np.array([e[1] for e in log]) - p_start,
+                       np.array([e[2] for e in log]))
+        t = ins.t_s
+        return FlownManeuver(ins, start, *self._reported(start, start + t[-1], p_start), bias, True,
+                             ins_age_s=start - first[0])
 
     def _hover_until_still(self, yaw_rad: float) -> tuple[HoverBias, float]:
         """The hover before the maneuver, tried HOVER_TRIES times if the vehicle would not keep still."""
@@ -447,6 +645,12 @@ class Pilot:
                                                                  0, 0, 0, *v, 0, 0, 0, yaw_rad, 0)
                 next_s = t + 1.0 / SETPOINT_HZ
 
+    def _asked_velocity(self, plan: _PlannedVelocity, t_man_s: float) -> np.ndarray:
+        """ArduCopter's GUIDED takes the legs' velocities and shapes them under its own acceleration limit; a
+        velocity loop of the flight side's own is given the plan's shaped velocity instead (a step would wind up its
+        integral and overshoot the leg's end)."""
+        return plan.velocity(t_man_s) if self.flying_mode == GUIDED_NOGPS else plan.setpoint(t_man_s)
+
     def _attitude_for(self, velocity_ned_mps: np.ndarray, yaw_rad: float) -> tuple[float, float, float, float]:
         """(roll, pitch, yaw, thrust) for GUIDED_NOGPS: the tilt whose thrust gives the acceleration the velocity
         loop on the INS asks for, the heading held, the thrust as the climb rate asked; level with no INS (the
@@ -455,7 +659,12 @@ class Pilot:
         thrust = 0.5 + 0.5 * max(-1.0, min(1.0, climb / (CLIMB_MPS if climb > 0 else DESCENT_MPS)))
         if self._ins is None:
             return 0.0, 0.0, yaw_rad, thrust
-        a = VELOCITY_GAIN_PER_S * (np.asarray(velocity_ned_mps[:2], float) - self._ins.vel_ned_mps[:2])
+        error = np.asarray(velocity_ned_mps[:2], float) - self._ins.vel_ned_mps[:2]
+        if self._steered_s is not None and math.hypot(*error) < INTEGRATE_BELOW_MPS:   # no windup in a transient
+            self._steer_integral = np.clip(self._steer_integral + VELOCITY_INTEGRAL_GAIN_PER_S2 * error
+                                           * (self._ins.t_s - self._steered_s), -INTEGRAL_MAX_MPS2, INTEGRAL_MAX_MPS2)
+        self._steered_s = self._ins.t_s
+        a = VELOCITY_GAIN_PER_S * error + self._steer_integral
         norm = math.hypot(*a)
         if norm > MAX_TILT_ACCEL_MPS2:
             a *= MAX_TILT_ACCEL_MPS2 / norm
@@ -478,7 +687,8 @@ class Pilot:
 
     def _check_streams(self) -> None:
         now = time.monotonic()
-        for name in ("ATTITUDE", "LOCAL_POSITION_NED", "GLOBAL_POSITION_INT", "HEARTBEAT"):
+        for name in ("ATTITUDE", "GLOBAL_POSITION_INT", "HEARTBEAT") + (("LOCAL_POSITION_NED",)
+                                                                     if self.flying_mode == GUIDED else ()):
             silent = now - self.tm.last_seen_s.get(name, now)
             if silent > self.timeout_s:
                 raise PilotError(f"no {name} from the vehicle in {silent:.1f} s")
