@@ -104,15 +104,24 @@ NO_GPS_START_VELOCITY_ERROR_MPS = 0.6
 NO_GPS_ACCEL_RESIDUAL_MPS2 = 0.03
 NO_GPS_GYRO_RESIDUAL_RPS = 6e-4
 
-def ins_error_bound_m(t_s, without_gps: bool = False):
+# A drift measured before the track and carried on through it (the GPS-aided windows before the GPS was lost) may
+# turn meanwhile: ArduCopter SITL's gyro drifts in a triangle wave (+-0.025 mrad/s^2), and a track flown over its turn
+# ended 4.95 m off after 18 s (its INS 23 s old) against 2 m elsewhere
+DRIFT_CHANGE_RPS2 = 2e-5
+
+
+def ins_error_bound_m(t_s, without_gps: bool = False, drift_carried: bool = False):
     """How far a hover-calibrated strapdown track may be from the truth t_s after its start: a start velocity error
     (t), the accelerometer's residual (t^2 / 2) and the gyro's, tilting gravity (g t^3 / 6): 2.4 m after 15 s, 4.3 m
-    after 20 s (without_gps: the autopilot had no GPS at the start, 17 and 27 m). The flight side sends it with its
-    track; the identifier's range tolerance grows with it (never under its own INS_DRIFT_M, 2 m)."""
+    after 20 s (without_gps: the autopilot had no GPS at the start, 17 and 27 m; drift_carried: the gyro's drift
+    measured before the INS started and carried on, g dd t^4 / 24 more for a drift that changes by dd). The flight
+    side sends it with its track; the identifier's range tolerance grows with it (never under its own INS_DRIFT_M,
+    2 m)."""
     t = np.asarray(t_s, float)
     v, a, w = ((NO_GPS_START_VELOCITY_ERROR_MPS, NO_GPS_ACCEL_RESIDUAL_MPS2, NO_GPS_GYRO_RESIDUAL_RPS) if without_gps
                else (START_VELOCITY_ERROR_MPS, ACCEL_RESIDUAL_MPS2, GYRO_RESIDUAL_RPS))
-    return FLOOR_M + v * t + a * t ** 2 / 2 + GRAVITY_NED_MPS2[2] * w * t ** 3 / 6
+    turn = DRIFT_CHANGE_RPS2 if drift_carried else 0.0
+    return FLOOR_M + v * t + a * t ** 2 / 2 + GRAVITY_NED_MPS2[2] * (w * t ** 3 / 6 + turn * t ** 4 / 24)
 
 
 class Strapdown:

@@ -62,7 +62,7 @@ REGAIN_TRY_S = 1.0                        # how often the mode before the maneuv
 # What the link heard lately is kept (a reader thread takes every message in, whether or not anyone waits for it), so
 # that when the autopilot loses its GPS the flight side still has the last GPS-aided seconds to calibrate by.
 INBOX_MAX = 8000                          # messages not yet taken (~60 s of the streams asked for)
-HISTORY_S = 40.0                          # the IMU, attitude, position and GPS state kept, vehicle time
+HISTORY_S = 45.0                          # the IMU, attitude, position and GPS state kept, vehicle time
 # calibration before the GPS was lost: two windows of the GPS-aided flight, CAL_WINDOW_S each, their mid-times
 # CAL_SPAN_S apart (the gyro's drift between them), ending CAL_MARGIN_S before the first report of no fix (a takeover
 # drags the fix for up to a second before SemperFi alarms: ArduCopter SITL, +3 dB at 10 m/s, alarmed 0.5-0.7 s into
@@ -70,6 +70,7 @@ HISTORY_S = 40.0                          # the IMU, attitude, position and GPS 
 CAL_WINDOW_S = 5.0
 CAL_SPAN_S = 15.0
 CAL_MARGIN_S = 2.0
+DRIFT_TURNED_RPS2 = 1e-5                  # the drift between the windows changed this much: it is no line
 HOVER_S = 3.0                             # the bias-measuring hovers before and after the maneuver (vehicle time)
 HOVER_MAX_SPEED_MPS = 1.0                 # a vehicle drifting faster than this in a zero-velocity hover disobeys
 STILL_MPS = 0.5                           # the hover starts once the vehicle has been this slow for STILL_S
@@ -120,7 +121,8 @@ class FlownManeuver:
     def error_bound_m(self) -> float:
         """How far the track may be from the truth at its end (deadreckoning.ins_error_bound_m)."""
         length_s = float(self.ins.t_s[-1] - self.ins.t_s[0])
-        return float(ins_error_bound_m(self.ins_age_s + length_s, self.bound_without_gps))
+        return float(ins_error_bound_m(self.ins_age_s + length_s, self.bound_without_gps,
+                                       drift_carried=self.ins_age_s > 0))
 
 
 def check_vehicle_url(url: str) -> str:
@@ -461,15 +463,7 @@ class Pilot:
                 self._ins = Strapdown(start, self._imu[-1][1], self._imu[-1][2], c0, v0, before)
                 self._ins_p0 = p0
                 self._steer_integral, self._steered_s = np.zeros(2), None
-            plan = _PlannedVelocity(maneuver)
-            self._obey_since = None
-            self._stream(lambda t: self._asked_velocity(plan, t - start), yaw,
-                         until=lambda t: t >= start + maneuver.duration_s,
-                         guard=lambda t: self._maneuvering(t - start, plan, p0))
-            stopped = {}
-            self._stream(lambda t: np.zeros(3), yaw,
-                         until=lambda t: self._stopped(t, start + maneuver.duration_s, stopped),
-                         guard=lambda t: self._maneuvering(None, plan, p0))
+            self._legs_and_stop(maneuver, yaw, start, p0)
             last = len(self._imu)
             if self.flying_mode == GUIDED_NOGPS:
                 # no second hover: the autopilot's attitude, which it measures the gyro against, has no GPS to
@@ -511,7 +505,14 @@ class Pilot:
         if late is None:
             return None
         early = self._window(h, end - CAL_SPAN_S - CAL_WINDOW_S, end - CAL_SPAN_S)
+        earliest = self._window(h, end - 2 * CAL_SPAN_S - CAL_WINDOW_S, end - 2 * CAL_SPAN_S)
         bias = late[0] if early is None else bias_between(early[0], late[0], early[1], late[1], end)
+        if early is not None and earliest is not None:
+            before = bias_between(earliest[0], early[0], earliest[1], early[1], end).gyro_drift_rps2
+            if np.any(np.abs(bias.gyro_drift_rps2 - before) > DRIFT_TURNED_RPS2):
+                # the drift turned (ArduCopter SITL's gyro drifts in a triangle wave): carried on as a line it
+                # would tilt the track most; near the turn the bias stands still, on average
+                bias = late[0]
         at = [a for a in h["att"] if a[0] <= end][-1]
         pos = np.array([(pt, *ned, *vel) for pt, ned, vel in h["pos"]])
         state = [float(np.interp(end, pos[:, 0], pos[:, k])) for k in range(1, 7)]
@@ -553,15 +554,7 @@ class Pilot:
             start = self._ins.t_s
             at_start = len(self._ins_log)
             p_start, v_start = self._position().copy(), self._ins.vel_ned_mps.copy()
-            plan = _PlannedVelocity(maneuver)
-            self._obey_since = None
-            self._stream(lambda t: self._asked_velocity(plan, t - start), yaw,
-                         until=lambda t: t >= start + maneuver.duration_s,
-                         guard=lambda t: self._maneuvering(t - start, plan, p_start))
-            stopped = {}
-            self._stream(lambda t: np.zeros(3), yaw,
-                         until=lambda t: self._stopped(t, start + maneuver.duration_s, stopped),
-                         guard=lambda t: self._maneuvering(None, plan, p_start))
+            self._legs_and_stop(maneuver, yaw, start, p_start)
         finally:
             self._recording = False
         log = [(start, p_start, v_start)] + self._ins_log[at_start:]
@@ -570,6 +563,19 @@ class Pilot:
         t = ins.t_s
         return FlownManeuver(ins, start, *self._reported(start, start + t[-1], p_start), bias, True,
                              ins_age_s=start - first[0])
+
+    def _legs_and_stop(self, maneuver: Maneuver, yaw: float, start: float, p0: np.ndarray) -> None:
+        """The maneuver's legs from vehicle time start (the geofence around p0), then zero velocity until stopped."""
+        plan = _PlannedVelocity(maneuver)
+        self._obey_since = None
+        self._stream(lambda t: self._asked_velocity(plan, t - start), yaw,
+                     until=lambda t: t >= start + maneuver.duration_s,
+                     guard=lambda t: self._maneuvering(t - start, plan, p0),
+                     acceleration=lambda t: plan.acceleration(t - start))
+        stopped = {}
+        self._stream(lambda t: np.zeros(3), yaw,
+                     until=lambda t: self._stopped(t, start + maneuver.duration_s, stopped),
+                     guard=lambda t: self._maneuvering(None, plan, p0))
 
     def _hover_until_still(self, yaw_rad: float) -> tuple[HoverBias, float]:
         """The hover before the maneuver, tried HOVER_TRIES times if the vehicle would not keep still."""
@@ -618,7 +624,7 @@ class Pilot:
         self._wait_for({self.imu_stream}, self.imu_stream)
         return self._imu[-1][0]
 
-    def _stream(self, velocity, yaw_rad: float, until, guard) -> None:
+    def _stream(self, velocity, yaw_rad: float, until, guard, acceleration=None) -> None:
         """Send velocity(t) with the heading held at SETPOINT_HZ of IMU time until until(t), guard(t) checking each
         IMU sample; every stream must keep coming (a silence of timeout_s is an error). In GUIDED_NOGPS: attitude
         targets at ATTITUDE_HZ (_attitude_for)."""
@@ -637,7 +643,8 @@ class Pilot:
                 continue
             v = velocity(t)
             if self.flying_mode == GUIDED_NOGPS:
-                self._send_attitude(t, *self._attitude_for(v, yaw_rad))
+                ahead = None if acceleration is None else acceleration(t)
+                self._send_attitude(t, *self._attitude_for(v, yaw_rad, ahead))
                 next_s = t + 1.0 / ATTITUDE_HZ
             else:
                 self.conn.mav.set_position_target_local_ned_send(int(t * 1000) & 0xFFFFFFFF, *self.target,
@@ -651,7 +658,8 @@ class Pilot:
         integral and overshoot the leg's end)."""
         return plan.velocity(t_man_s) if self.flying_mode == GUIDED_NOGPS else plan.setpoint(t_man_s)
 
-    def _attitude_for(self, velocity_ned_mps: np.ndarray, yaw_rad: float) -> tuple[float, float, float, float]:
+    def _attitude_for(self, velocity_ned_mps: np.ndarray, yaw_rad: float, accel_ned_mps2=None
+                      ) -> tuple[float, float, float, float]:
         """(roll, pitch, yaw, thrust) for GUIDED_NOGPS: the tilt whose thrust gives the acceleration the velocity
         loop on the INS asks for, the heading held, the thrust as the climb rate asked; level with no INS (the
         hover before the maneuver: a level multicopter holds its velocity but for drag)."""
@@ -665,6 +673,8 @@ class Pilot:
                                            * (self._ins.t_s - self._steered_s), -INTEGRAL_MAX_MPS2, INTEGRAL_MAX_MPS2)
         self._steered_s = self._ins.t_s
         a = VELOCITY_GAIN_PER_S * error + self._steer_integral
+        if accel_ned_mps2 is not None:   # the plan's own acceleration, ahead of the error it would otherwise leave
+            a = a + np.asarray(accel_ned_mps2, float)[:2]
         norm = math.hypot(*a)
         if norm > MAX_TILT_ACCEL_MPS2:
             a *= MAX_TILT_ACCEL_MPS2 / norm
@@ -755,6 +765,7 @@ class _PlannedVelocity:
         self.t_s = maneuver.t_s
         pos = np.column_stack([maneuver.north_m, maneuver.east_m, maneuver.down_m])
         self.vel = np.gradient(pos, maneuver.t_s, axis=0)
+        self.acc = np.gradient(self.vel, maneuver.t_s, axis=0)
 
     def setpoint(self, t_s: float) -> np.ndarray:
         k = int(np.searchsorted(self.ends_s, t_s, side="right"))
@@ -765,3 +776,6 @@ class _PlannedVelocity:
 
     def velocity(self, t_s: float) -> np.ndarray:
         return np.array([np.interp(t_s, self.t_s, self.vel[:, k]) for k in range(3)])
+
+    def acceleration(self, t_s: float) -> np.ndarray:
+        return np.array([np.interp(t_s, self.t_s, self.acc[:, k]) for k in range(3)])
