@@ -309,8 +309,8 @@ def test_without_gps_the_maneuver_is_flown_on_attitude_targets_and_the_mode_give
     at = np.column_stack([np.interp(t0 + ins.t_s, truth[:, 0], truth[:, k]) for k in (1, 2, 3)])
     flown_m = at - at[0]
     plan_end = np.array([maneuver.north_m[-1], maneuver.east_m[-1], maneuver.down_m[-1]])
-    assert maneuver.end_distance_m > 15.0 and np.linalg.norm(flown_m[-1] - plan_end) < 5.0, \
-        (flown_m[-1], plan_end)   # steered by the INS
+    assert maneuver.end_distance_m > 15.0 and np.linalg.norm(flown_m[-1] - plan_end) < 8.0, \
+        (flown_m[-1], plan_end)   # steered by the INS (as the GUIDED test: gusts, and a lag)
     drift = np.linalg.norm(ins.pos_ned_m - flown_m, axis=1)
     length_s = ins.t_s[-1] + flown.ins_age_s   # the INS ran this long (from before the maneuver, when watched)
     # one hover, no second to measure the gyro's drift: its drift tilts gravity by g drift t^4 / 24 more

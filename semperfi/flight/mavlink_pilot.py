@@ -71,6 +71,10 @@ CAL_WINDOW_S = 5.0
 CAL_SPAN_S = 15.0
 CAL_MARGIN_S = 2.0
 DRIFT_TURNED_RPS2 = 1e-5                  # the drift between the windows changed this much: it is no line
+# a drift read from two windows beyond this is the windows' error (a takeoff's, a climb's), not the gyro's: SITL's
+# drifts by 0.025 mrad/s^2 at most; read across a climb, 1.2 mrad/s^2 put an INS 50 m off and aborted a maneuver
+DRIFT_MAX_RPS2 = 1e-4
+OUTAGE_S = 1.5                            # a GPS back within this is no outage to fly a maneuver without GPS in
 HOVER_S = 3.0                             # the bias-measuring hovers before and after the maneuver (vehicle time)
 HOVER_MAX_SPEED_MPS = 1.0                 # a vehicle drifting faster than this in a zero-velocity hover disobeys
 STILL_MPS = 0.5                           # the hover starts once the vehicle has been this slow for STILL_S
@@ -387,7 +391,7 @@ class Pilot:
         if lowest < self.limits.min_altitude_m - HEIGHT_MARGIN_M:
             raise PilotError(f"the maneuver would take the vehicle down to {lowest:.1f} m above home")
         previous = self.tm.custom_mode
-        self.flying_mode = GUIDED if self.tm.positioned else GUIDED_NOGPS
+        self.flying_mode = GUIDED if self._positioned_soon() else GUIDED_NOGPS
         self.set_mode(self.flying_mode)
         try:
             flown = self._fly_legs(maneuver)
@@ -398,6 +402,20 @@ class Pilot:
             self._ins = None   # an INS is good for a maneuver, not for holding the vehicle afterwards
         self._give_back(previous)
         return flown
+
+    def _positioned_soon(self) -> bool:
+        """Whether the autopilot has its GPS, waiting OUTAGE_S for it to come back: SemperFi withholds a fix for a
+        moment when continuity decides at once (ArduCopter SITL, a static attacker: 0.1-1.3 s), and a maneuver
+        begun without GPS would then be calibrated on that blink."""
+        if self.tm.positioned:
+            return True
+        since = time.monotonic()
+        try:
+            self._wait_for({"GPS_RAW_INT"}, "GPS_RAW_INT with a fix", timeout_s=OUTAGE_S,
+                           accept=lambda msg: self.tm.positioned)
+        except PilotError:
+            return False
+        return time.monotonic() - since < OUTAGE_S
 
     def _give_back(self, previous: int) -> str:
         """The mode the vehicle was in, unless someone else (a pilot on the radio, a failsafe) has taken it out of
@@ -507,6 +525,8 @@ class Pilot:
         early = self._window(h, end - CAL_SPAN_S - CAL_WINDOW_S, end - CAL_SPAN_S)
         earliest = self._window(h, end - 2 * CAL_SPAN_S - CAL_WINDOW_S, end - 2 * CAL_SPAN_S)
         bias = late[0] if early is None else bias_between(early[0], late[0], early[1], late[1], end)
+        if np.any(np.abs(bias.gyro_drift_rps2) > DRIFT_MAX_RPS2):
+            bias = late[0]
         if early is not None and earliest is not None:
             before = bias_between(earliest[0], early[0], earliest[1], early[1], end).gyro_drift_rps2
             if np.any(np.abs(bias.gyro_drift_rps2 - before) > DRIFT_TURNED_RPS2):
@@ -573,6 +593,8 @@ class Pilot:
                      guard=lambda t: self._maneuvering(t - start, plan, p0),
                      acceleration=lambda t: plan.acceleration(t - start))
         stopped = {}
+        # what the integral learnt was the drag at speed: kept, it would hold the vehicle at I / gain off zero
+        self._steer_integral = np.zeros(2)
         self._stream(lambda t: np.zeros(3), yaw,
                      until=lambda t: self._stopped(t, start + maneuver.duration_s, stopped),
                      guard=lambda t: self._maneuvering(None, plan, p0))
