@@ -215,9 +215,9 @@ class Pilot:
                 imu = self.tm.update(msg, arrived)
             except TelemetryError as exc:
                 raise PilotError(str(exc)) from None
-            self._remember(msg, imu)
+            self._keep(self._history, msg, imu)
             if self._recording:
-                self._record(msg, imu)
+                self._keep({"imu": self._imu, "att": self._att, "pos": self._pos}, msg, imu)
             return msg
 
     def _catch_up(self) -> None:
@@ -229,27 +229,19 @@ class Pilot:
         for _ in range(backlog):
             self._next(since + self.timeout_s, "message", since)
 
-    def _remember(self, msg, imu) -> None:
-        kind, h = msg.get_type(), self._history
-        if imu is not None and kind == self.imu_stream:
-            if not h["imu"] or imu[0] > h["imu"][-1][0]:
-                h["imu"].append(imu)
-        elif kind == "ATTITUDE":
-            h["att"].append((self.tm.attitude_t_s, self.tm.attitude_rpy_rad, self.tm.attitude_rates_rps))
-        elif kind == "LOCAL_POSITION_NED":
-            h["pos"].append((self.tm.pos_t_s, self.tm.pos_ned_m, self.tm.vel_ned_mps))
-        elif kind == "GPS_RAW_INT" and self.tm.attitude_t_s is not None:
-            h["gps"].append((self.tm.attitude_t_s, self.tm.positioned))   # GPS_RAW_INT's own time is not boot time
-
-    def _record(self, msg, imu) -> None:
+    def _keep(self, into: dict, msg, imu) -> None:
+        """The message into its list of into (imu, att, pos; gps where there is one): the history, or a flight's
+        record."""
         kind = msg.get_type()
         if imu is not None and kind == self.imu_stream:
-            if not self._imu or imu[0] > self._imu[-1][0]:   # a repeated timestamp adds nothing
-                self._imu.append(imu)
+            if not into["imu"] or imu[0] > into["imu"][-1][0]:   # a repeated timestamp adds nothing
+                into["imu"].append(imu)
         elif kind == "ATTITUDE":
-            self._att.append((self.tm.attitude_t_s, self.tm.attitude_rpy_rad, self.tm.attitude_rates_rps))
+            into["att"].append((self.tm.attitude_t_s, self.tm.attitude_rpy_rad, self.tm.attitude_rates_rps))
         elif kind == "LOCAL_POSITION_NED":
-            self._pos.append((self.tm.pos_t_s, self.tm.pos_ned_m, self.tm.vel_ned_mps))
+            into["pos"].append((self.tm.pos_t_s, self.tm.pos_ned_m, self.tm.vel_ned_mps))
+        elif kind == "GPS_RAW_INT" and "gps" in into and self.tm.attitude_t_s is not None:
+            into["gps"].append((self.tm.attitude_t_s, self.tm.positioned))   # its own time is not boot time
 
     def _wait_for(self, kinds, what: str, timeout_s: float | None = None, accept=lambda msg: True):
         since = time.monotonic()
