@@ -115,7 +115,7 @@ def test_without_gps_the_maneuver_is_flown_in_guided_nogps_and_the_mode_given_ba
     assert flown.ins_age_s > 2.0, "its INS started on the GPS-aided flight the flight side watched before"
     assert obs.wait_mode(BRAKE), f"left in mode {obs.custom_mode} (BRAKE needs the position back first)"
     assert obs.height_m > 15.0, f"the vehicle came down to {obs.height_m:.1f} m (the EKF failsafe lands in GUIDED)"
-    assert row["plan_vs_flown_end_m"] < 6.0, row["plan_vs_flown_end_m"]   # steered by the INS: 0.4-3.9 m measured
+    assert row["plan_vs_flown_end_m"] < 8.0, row["plan_vs_flown_end_m"]   # steered by the INS: 0.2-4.8 m measured
     assert row["ins_end_error_m"] <= flown.error_bound_m, \
         (f"INS ends {row['ins_end_error_m']:.2f} m from SIM_STATE after {row['track_s']:.1f} s, its stated bound "
          f"{flown.error_bound_m:.1f} m")
