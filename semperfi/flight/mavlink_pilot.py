@@ -470,9 +470,7 @@ class Pilot:
             p0 = self.tm.pos_ned_m.copy()
             first = len(self._imu) - 1
             if self.flying_mode == GUIDED_NOGPS:
-                self._ins = Strapdown(start, self._imu[-1][1], self._imu[-1][2], c0, v0, before)
-                self._ins_p0 = p0
-                self._steer_integral, self._steered_s = np.zeros(2), None
+                self._steer_by_ins(self._imu[-1], c0, v0, before, p0)
             self._legs_and_stop(maneuver, yaw, start, p0)
             last = len(self._imu)
             if self.flying_mode == GUIDED_NOGPS:
@@ -555,9 +553,7 @@ class Pilot:
         hover needed, its biases are known; settled, flown and stopped on the INS's velocity. The track is the
         INS's own, from the maneuver's start."""
         first = since_end[0]
-        self._ins = Strapdown(first[0], first[1], first[2], c0, v0, bias)
-        self._ins_p0 = p0
-        self._steer_integral, self._steered_s = np.zeros(2), None
+        self._steer_by_ins(first, c0, v0, bias, p0)
         for t, f, w in since_end[1:]:
             self._ins.step(t, f, w)
         self._recording = True
@@ -575,6 +571,13 @@ class Pilot:
         t = ins.t_s
         return FlownManeuver(ins, start, *self._reported(start, start + t[-1], p_start), bias, True,
                              ins_age_s=start - first[0])
+
+    def _steer_by_ins(self, sample: tuple, c0, v0, bias: HoverBias, p0: np.ndarray) -> None:
+        """A fresh INS to steer by, from the IMU sample (t, accel, gyro) with attitude c0 and velocity v0 there (its
+        positions from p0, the autopilot's frame), and a fresh velocity loop."""
+        self._ins = Strapdown(sample[0], sample[1], sample[2], c0, v0, bias)
+        self._ins_p0 = p0
+        self._steer_integral, self._steered_s = np.zeros(2), None
 
     def _legs_and_stop(self, maneuver: Maneuver, yaw: float, start: float, p0: np.ndarray) -> None:
         """The maneuver's legs from vehicle time start (the geofence around p0), then zero velocity until stopped."""
