@@ -163,3 +163,17 @@ def test_without_the_turn_a_3_km_error_calls_legitimate_peaks_adversarial():
                                           known_turn=False)
         false += sum(v.peak_id == 0 and v.adversarial for v in identify_peaks(peaks, los, imu))
     assert false > 0, "the position error matters, so the estimate above is needed"
+
+
+def test_when_every_followed_peak_is_the_attackers_none_is_cleared():
+    """A takeover of every PRN with each twin merged under its spoofer's peak: one followed peak per PRN, all the
+    attacker's. Those whose lines of sight the maneuver moved alike agree on a clock as legitimate peaks would; they
+    agree as well with a receiver that did not move, so they are not cleared (clearing one cancels its twin)."""
+    cleared = flagged = 0
+    for seed in range(50):
+        peaks, los, imu, _, _ = scene(seed, spoofed=tuple(range(1, 9)))
+        verdicts = identify_peaks([p for p in peaks if p.peak_id == 1], los, imu)
+        cleared += sum(v.decided and not v.adversarial for v in verdicts)
+        flagged += sum(v.decided and v.adversarial for v in verdicts)
+    assert cleared == 0, cleared   # 104 of the 400 were, before the check against a receiver that did not move
+    assert flagged >= 0.5 * 50 * 8, flagged

@@ -25,28 +25,21 @@ from semperfi.sim.scenario import load_scenario
 LAT, LON, H = 42.3398, -71.0892, 10.0
 
 
-def test_a_weaker_attacker_is_identified_by_the_maneuver_and_the_true_trajectory_recovered(tmp_path, brdc_path):
-    """3 dB weaker than the legitimate signals and synchronized: the 'stronger peak' guess would cancel the
-    legitimate signals. The maneuver decides peak by peak; the PRNs it cannot decide (too little line-of-sight
-    motion, or twins too close to follow apart) take the power relation it established on the others."""
-    t, ned = hover_maneuver_hover(8.0, 6.0)
+def _fly_through_attack(tmp_path, brdc_path, hover_before_s: float, *attacker_sets: str):
+    """Hover, the maneuver, hover; an attacker on from the first sample; the recording run defended with the INS
+    track the vehicle logged. Returns (events, horizontal errors against the truth by fix state)."""
+    t, ned = hover_maneuver_hover(hover_before_s, 6.0)
     write_motion_csv(tmp_path / "motion.csv", t, ned, LAT, LON, H)
     write_track_csv(tmp_path / "ins.csv", t, ins_track(t, ned, seed=3))
     cfg = load_scenario(None, ["signal.fs_hz=2e6", f"time.duration_s={t[-1]}", f'constellation.rinex="{brdc_path}"',
                                'time.start="2022-01-01T00:00:27"', "constellation.max_satellites=8",
-                               "attacker.enabled=true", "attacker.power_advantage_db=-3.0",
+                               "attacker.enabled=true", *attacker_sets,
                                f'receiver.trajectory="{tmp_path / "motion.csv"}"'])
     simulate_to_file(cfg, tmp_path / "a.bin")
     receiver = functools.partial(DefendedReceiver, imu_track=read_imu_csv(tmp_path / "ins.csv"))
     run_file(tmp_path / "a.bin", None, None, None, load_config(None, ['defense.mode="full"']), tmp_path / "out",
              str(brdc_path), receiver_factory=receiver)
     events = [json.loads(line) for line in open(tmp_path / "out" / "events.jsonl")]
-    starts = [e for e in events if e["event"] == "cancellation_start"]
-    by_maneuver = [e["prn"] for e in starts if e["reason"].startswith("maneuver")]
-    assert len(by_maneuver) >= 3, starts
-    assert not any(e["guessed"] for e in starts), starts
-    assert all(e["event"] != "cancellation_start" or e["t_rx_s"] >= 21.0 for e in events), "nothing before the verdict"
-
     truth = np.loadtxt(tmp_path / "motion.csv", delimiter=",")
     rot = enu_rotation(np.radians(LAT), np.radians(LON))
     errors = {}
@@ -56,11 +49,43 @@ def test_a_weaker_attacker_is_identified_by_the_maneuver_and_the_true_trajectory
             enu = rot @ (np.array([float(f[c]) for c in ("x_m", "y_m", "z_m")]) - truth[k, 1:])
             errors.setdefault(f["state"], []).append(float(np.hypot(enu[0], enu[1])))
     print({s: (len(e), round(float(np.mean(e)), 2), round(float(np.max(e)), 2)) for s, e in errors.items()})
+    return events, errors
+
+
+def test_a_weaker_attacker_is_identified_by_the_maneuver_and_the_true_trajectory_recovered(tmp_path, brdc_path):
+    """3 dB weaker than the legitimate signals and synchronized: the 'stronger peak' guess would cancel the
+    legitimate signals. The maneuver decides peak by peak; the PRNs it cannot decide (too little line-of-sight
+    motion, or twins too close to follow apart) take the power relation it established on the others."""
+    events, errors = _fly_through_attack(tmp_path, brdc_path, 8.0, "attacker.power_advantage_db=-3.0")
+    starts = [e for e in events if e["event"] == "cancellation_start"]
+    by_maneuver = [e["prn"] for e in starts if e["reason"].startswith("maneuver")]
+    assert len(by_maneuver) >= 3, starts
+    assert not any(e["guessed"] for e in starts), starts
+    assert all(e["event"] != "cancellation_start" or e["t_rx_s"] >= 21.0 for e in events), "nothing before the verdict"
     # recovered, or rectified: a retrieved signal timed by its spoofer's message until it reads its own
     defended = errors.get("recovered", []) + errors.get("rectified", [])
     assert len(defended) >= 20, errors.keys()
     assert np.mean(defended) < 5.0
     assert max(defended + errors.get("nominal", [])) < 10.0
+
+
+def test_twins_merged_under_their_spoofers_peaks_are_decided_on_the_one_peak_followed(tmp_path, brdc_path):
+    """A stronger attacker claiming a position 150 m off: every twin lies 0.2-0.45 chip from its spoofer, inside one
+    correlation peak, so the maneuver follows one peak per PRN (the stronger path, the attacker's). The peaks it
+    shows not to follow are cancelled with their twins found by the two-path fit; the rest by the power relation
+    those establish; no guess, and the fixes recovered on the truth (before: every such PRN was examined afresh
+    after the verdict and cancelled on a guess, and the fixes stayed `recovering`)."""
+    events, errors = _fly_through_attack(tmp_path, brdc_path, 18.0, "attacker.offset_east_m=150",
+                                         "attacker.power_advantage_db=3")
+    verdicts = next(e for e in events if e["event"] == "identification")["verdicts"]
+    assert {v["peak"] for v in verdicts} == {0}, "one peak followed per PRN"
+    assert not [v for v in verdicts if v["decided"] and not v["adversarial"]], \
+        f"a spoofer-dominated peak cleared: {verdicts}"
+    starts = [e for e in events if e["event"] == "cancellation_start"]
+    assert not any(e["guessed"] for e in starts), starts
+    assert len([e for e in starts if e["reason"].startswith("maneuver: the peak followed")]) >= 3, starts
+    recovered = errors.get("recovered", [])
+    assert len(recovered) >= 30 and np.mean(recovered) < 3.0 and max(recovered) < 10.0, errors.keys()
 
 
 def test_run_refuses_a_malformed_imu_track_in_one_line(tmp_path):

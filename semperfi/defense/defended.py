@@ -164,7 +164,7 @@ class DefendedReceiver:
                 continue
             legit = self._continuing(prn, epoch, (0.0, spoofer_chips))
             if legit is not None:
-                g.identified_by_continuity(prn, cancelled_is_attacker=legit == 0, t_s=epoch / self.inner.fs_hz)
+                g.identified(prn, cancelled_is_attacker=legit == 0, t_s=epoch / self.inner.fs_hz)
 
     def _continuing(self, prn: int, sample: float, chips: tuple[float, float]) -> int | None:
         """Which of a pair's code phases (at an absolute sample) continues the last nominal fix's range."""

@@ -6,6 +6,7 @@
 Used in front of the receiver chain (DefendedReceiver) and on its own as the plug-in filter (semperfi clean).
 """
 
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -592,12 +593,14 @@ class SpoofGuard:
              "score": round(v.score, 2), "reason": v.reason} for v in ident.verdicts])
         now = self._seen - self.window
         self._looked = (self._raw.array(), now)
-        lone = {prn for prn, _ in ident.followers if prn not in self.awaiting and (prn, 1) not in ident.followers}
-        for v in ident.verdicts:
-            if v.decided and v.adversarial and v.prn in lone:
-                self.gave_up[v.prn] = "identified as the attacker's (maneuver), no legitimate twin found"
-            elif v.decided and v.prn in lone:
-                self.maneuver_legit.add(v.prn)
+        one_peak = {v.prn: v for v in ident.verdicts if v.decided and (v.prn, 1) not in ident.followers}
+        for prn, v in one_peak.items():
+            if prn in self.cancel_started:
+                self._judge_cancelled(prn, ident.followers[(prn, 0)].peak_at(now), v.adversarial, now, t_s)
+            elif prn not in self.awaiting and v.adversarial:
+                self.gave_up[prn] = "identified as the attacker's (maneuver), no legitimate twin found"
+            elif prn not in self.awaiting:
+                self.maneuver_legit.add(prn)
         decided = {}   # PRN -> (attacker's follower, the other): one peak shown not to follow, its twin shown to
         flagged = {}   # also the PRNs where one peak was shown not to follow and the other was not flagged
         for prn in self.awaiting:
@@ -612,23 +615,61 @@ class SpoofGuard:
             if verdict[1 - adv[0]].decided:
                 decided[prn] = pair
         # the followers' C/N0 over the whole maneuver, not one look's peak metrics, says which was the stronger; the
-        # one-sided PRNs count too: a legitimate peak wrongly flagged would show the opposite sign and stop it
-        gaps_db = [adv.mean_cn0_dbhz() - legit.mean_cn0_dbhz() for adv, legit in flagged.values()]
-        relation = {g > 0 for g in gaps_db}
-        self._emit("attacker_power", t_s, gaps_db={prn: round(g, 1) for prn, g in zip(flagged, gaps_db)})
-        if len(flagged) >= 3 and len(relation) == 1 and min(abs(g) for g in gaps_db) >= POWER_MARGIN_DB / 2:
+        # one-sided PRNs count too: a legitimate peak wrongly flagged would show the opposite sign and stop it. A PRN
+        # followed on one peak (its twin merged under it) had the stronger one followed: its alarm's pair says by how
+        # much
+        gaps_db = {prn: adv.mean_cn0_dbhz() - legit.mean_cn0_dbhz() for prn, (adv, legit) in flagged.items()}
+        for prn, v in one_peak.items():
+            if prn in self.awaiting:
+                pair = self.awaiting[prn].pair
+                gap_db = 10 * math.log10(max(pair.main.metric, pair.auxiliary.metric, 1e-9) /
+                                         max(min(pair.main.metric, pair.auxiliary.metric), 1e-9))
+                gaps_db[prn] = gap_db if v.adversarial else -gap_db
+        relation = {g > 0 for g in gaps_db.values()}
+        self._emit("attacker_power", t_s, gaps_db={prn: round(g, 1) for prn, g in gaps_db.items()})
+        if len(gaps_db) >= 3 and len(relation) == 1 and min(map(abs, gaps_db.values())) >= POWER_MARGIN_DB / 2:
             self.attacker_stronger = relation.pop()
-            self._inference = (f"inferred: on the {len(flagged)} PRNs the maneuver decided, the attacker's peak was "
+            self._inference = (f"inferred: on the {len(gaps_db)} PRNs the maneuver decided, the attacker's peak was "
                                f"the {'stronger' if self.attacker_stronger else 'weaker'}")
         for prn, alarm in list(self.awaiting.items()):
             del self.awaiting[prn]
-            adv, legit, reason = self._verdict_pair(prn, decided, flagged, ident.followers)
-            adv_now, legit_now = (adv.peak_at(now), legit.peak_at(now)) if adv is not None else (None, None)
-            if adv_now is not None and legit_now is not None:
-                self._start_cancelling(prn, t_s, Choice(adv_now, legit_now, False, reason))
+            if prn in one_peak:
+                choice = self._one_peak_choice(ident.followers[(prn, 0)].peak_at(now), one_peak[prn].adversarial)
+            else:
+                adv, legit, reason = self._verdict_pair(prn, decided, flagged, ident.followers)
+                adv_now, legit_now = (adv.peak_at(now), legit.peak_at(now)) if adv is not None else (None, None)
+                choice = Choice(adv_now, legit_now, False, reason) if None not in (adv_now, legit_now) else None
+            if choice is not None:
+                self._start_cancelling(prn, t_s, choice)
             else:   # examined afresh: its peaks have moved since the alarm
                 self.alarmed_prns.discard(prn)
                 self.detector.examine_afresh(prn)
+
+    def _one_peak_choice(self, followed: Peak | None, adversarial: bool) -> Choice | None:
+        """An awaiting PRN followed on one peak, its twin merged under it: the peak the maneuver decided is the
+        stronger path, the other one is found by the two-path fit around it (when the followed one is the attacker's,
+        by _start_cancelling, as for any spoofer hiding a twin)."""
+        if followed is None:
+            return None
+        if adversarial:
+            return Choice(followed, None, False, "maneuver: the peak followed does not follow the vehicle's motion "
+                                                 "(its twin merged under it)")
+        twin = self._hidden_twin(self._looked[0], followed)
+        if twin is None:
+            return None
+        return Choice(replace(followed, code_phase_chips=twin), followed, False,
+                      "maneuver: the peak followed follows the vehicle's motion; the attacker's is the other path "
+                      "under it")
+
+    def _judge_cancelled(self, prn: int, followed: Peak | None, adversarial: bool, sample: int, t_s: float) -> None:
+        """A PRN cancelled on a guess before the maneuver, its raw peak followed through it: the verdict says whether
+        the guess was right (the followed peak is the cancelled one and did not follow the vehicle, or is the
+        other one and did)."""
+        if prn not in self.guessed or followed is None:
+            return
+        at_spoofer = any(chips_apart(followed.code_phase_chips, spoofer) < 0.5
+                         for _, spoofer in self.spoofers_at(prn, sample))
+        self.identified(prn, at_spoofer == adversarial, t_s, "maneuver: the peak followed through it")
 
     def _verdict_pair(self, prn: int, decided: dict, flagged: dict, followers: dict):
         """(the attacker's follower, the legitimate one's, why) for an awaiting PRN at the verdict, or Nones: decided
@@ -679,6 +720,10 @@ class SpoofGuard:
             return
         x, peak_sample = self._looked
         peak = refine_peak(x[:self.window // 4], self.fs_hz, self.if_hz, choice.adversarial)
+        if choice.legitimate is not None and chips_apart(peak.code_phase_chips, choice.legitimate.code_phase_chips) < \
+                chips_apart(choice.adversarial.code_phase_chips, choice.legitimate.code_phase_chips) / 2:
+            # the refinement slid onto the legitimate path (a weaker attacker's under it): its Doppler only
+            peak = replace(peak, code_phase_chips=choice.adversarial.code_phase_chips)
         amplitude = caf_amplitude(x, self.fs_hz, self.if_hz, peak.prn, peak.code_phase_chips, peak.doppler_hz)
         legit = None if choice.legitimate is None else choice.legitimate.code_phase_chips
         hidden = None
@@ -823,10 +868,11 @@ class SpoofGuard:
         if self.on_release is not None:   # the samples cleaned from now on (the canceller holds a code period back)
             self.on_release(prn, self._cleaned + int(self.fs_hz * RELEASE_MARGIN_S))
 
-    def identified_by_continuity(self, prn: int, cancelled_is_attacker: bool, t_s: float) -> None:
-        """The continuity test decided a guessed PRN: the cancelled peak was the attacker's (no longer a guess), or
-        it was the legitimate one -- what the receiver tracks there is the attacker's: the cancellation is dropped
-        and the PRN examined afresh (its next alarm is decided by the same test), given up after MAX_SWAPS."""
+    def identified(self, prn: int, cancelled_is_attacker: bool, t_s: float,
+                   reason: str = "continuity with the last nominal fix (INS)") -> None:
+        """A test decided a guessed PRN: the cancelled peak was the attacker's (no longer a guess), or it was the
+        legitimate one -- what the receiver tracks there is the attacker's: the cancellation is dropped and the PRN
+        examined afresh (its next alarm is decided by the same test), given up after MAX_SWAPS."""
         if cancelled_is_attacker:
             self.guessed.discard(prn)
         elif self.swapped.get(prn, 0) >= MAX_SWAPS:
@@ -839,7 +885,7 @@ class SpoofGuard:
             self._forget(prn)
         then = "known" if cancelled_is_attacker else "given up" if prn in self.gave_up else "cancellation dropped"
         self._emit("identification", t_s, verdicts=[{"prn": prn, "adversarial": cancelled_is_attacker, "decided": True,
-                                                     "reason": "continuity with the last nominal fix (INS)",
+                                                     "reason": reason,
                                                      "then": then}])
 
     def resolved(self, prn: int) -> bool:

@@ -151,7 +151,7 @@ def identify_peaks(peaks, los, imu: ImuTrack, range_tol_m: float = 4.5, doppler_
     d_p = imu.position_at(t) - imu.position_at(t[:1])
     v = imu.velocity_at(t)
     dv = v - v[:1]
-    res, sig, res_d, turn = [], [], [], []
+    res, sig, res_d, turn, moved, moved_d = [], [], [], [], [], []
     for p in peaks:
         if p.prn not in los:
             raise ValueError(f"no line of sight for PRN {p.prn}")
@@ -161,6 +161,8 @@ def identify_peaks(peaks, los, imu: ImuTrack, range_tol_m: float = 4.5, doppler_
         rho = np.interp(t, p.t_s, p.pseudorange_m)
         sat = np.interp(t, L.t_s, L.sat_range_change_m)
         proj = d_p @ u
+        moved.append(proj)
+        moved_d.append(dv @ u)
         res.append((rho - rho[0]) - (sat - sat[0]) + proj)
         turn.append(None if L.u_change_ned is None else
                     np.stack([np.interp(t, L.t_s, L.u_change_ned[:, k]) for k in range(3)], axis=-1))
@@ -176,32 +178,35 @@ def identify_peaks(peaks, los, imu: ImuTrack, range_tol_m: float = 4.5, doppler_
     res = raw
     turn = np.array(turn) if all(g is not None for g in turn) else None
     use_d = all(r is not None for r in res_d)
+    res_d = np.array(res_d) if use_d else None
     tol_rate = L1_WAVELENGTH_M * doppler_tol_hz
+    # the residuals of a receiver that did not move: a single transmitter's peaks all share one there (its own range
+    # change to the vehicle), whatever the maneuver
+    still, still_d = raw - np.array(moved), (res_d - np.array(moved_d) if use_d else None)
 
-    def mismatch(i, j, detrend=False):
-        d = res[i] - res[j]
+    def mismatch(i, j, r, r_d, detrend=False):
+        d = r[i] - r[j]
         if detrend:   # a position error's drift is nearly linear in time; the maneuver's signature is not
             d = d - np.polyval(np.polyfit(t, d, 1), t)
         e = np.sqrt(np.mean(d ** 2)) / range_tol_m
         if use_d:
-            e = max(e, np.sqrt(np.mean((res_d[i] - res_d[j]) ** 2)) / tol_rate)
+            e = max(e, np.sqrt(np.mean((r_d[i] - r_d[j]) ** 2)) / tol_rate)
         return e
 
     n = len(peaks)
 
-    def consensus(detrend=False):
-        m = np.array([[mismatch(i, j, detrend) for j in range(n)] for i in range(n)])
+    def consensus(r, r_d, detrend=False):
+        m = np.array([[mismatch(i, j, r, r_d, detrend) for j in range(n)] for i in range(n)])
         # the hypothesis peak with the most peaks agreeing (tie: smallest total mismatch)
         counts = [(int(np.sum(m[i] <= 1.0)), -float(np.sum(np.minimum(m[i], 1.0)))) for i in range(n)]
         best = max(range(n), key=lambda i: counts[i])
         return np.flatnonzero(m[best] <= 1.0)
 
-    def against(members):
-        clock = np.median(res[members], axis=0)
-        clock_d = np.median(np.array([res_d[i] for i in members]), axis=0) if use_d else None
-        e = np.sqrt(np.mean((res - clock) ** 2, axis=1)) / range_tol_m
+    def against(members, r, r_d):
+        clock = np.median(r[members], axis=0)
+        e = np.sqrt(np.mean((r - clock) ** 2, axis=1)) / range_tol_m
         if use_d:
-            e = np.maximum(e, np.sqrt(np.mean((np.array(res_d) - clock_d) ** 2, axis=1)) / tol_rate)
+            e = np.maximum(e, np.sqrt(np.mean((r_d - np.median(r_d[members], axis=0)) ** 2, axis=1)) / tol_rate)
         return e
 
     def position_error(members) -> np.ndarray:
@@ -219,35 +224,53 @@ def identify_peaks(peaks, los, imu: ImuTrack, range_tol_m: float = 4.5, doppler_
         nonlocal res
         for _ in range(3):
             res = raw - turn @ position_error(members)
-            again = consensus()
+            again = consensus(res, res_d)
             if set(again) == set(members):
                 break
             members = again
         return members, res
 
-    members = consensus()
+    members = consensus(res, res_d)
     if turn is not None:
         # start from the plain consensus, and from one on detrended differences (blind to the position error's
         # near-linear drift, which beyond a few km splits the plain one); keep the larger, tighter consensus
         best = None
-        for start in (members, consensus(detrend=True)):
+        for start in (members, consensus(res, res_d, detrend=True)):
             m_k, res_k = corrected_consensus(start)
             res = res_k
-            score = (len(m_k), -float(np.mean(against(m_k)[m_k])))
+            score = (len(m_k), -float(np.mean(against(m_k, res, res_d)[m_k])))
             if best is None or score > best[0]:
                 best = (score, m_k, res_k)
         _, members, res = best
-    errors = against(members)
+    errors = against(members, res, res_d)
     for _ in range(3):   # refine the clock from the peaks that agree with it
         refined = np.flatnonzero(errors <= 1.0)
         if len(refined) < len(members) or len(refined) < 2:
             break
-        members, errors = refined, against(refined)
+        members, errors = refined, against(refined, res, res_d)
+    # a consensus of peaks that a receiver that did not move explains as well proves nothing: when every followed peak
+    # is the attacker's (a takeover of every PRN, each twin merged under its spoofer's peak), those whose lines of
+    # sight the maneuver moved alike agree on a clock as legitimate peaks would (ArduCopter SITL closed loop: a PRN
+    # cleared so had its legitimate twin cancelled). The clock is proven by two of its peaks that such a receiver does
+    # not explain.
+    moved, moved_d = np.array(moved), (np.array(moved_d) if use_d else None)
+    still_members = consensus(still, still_d)
+    still_fit = (against(still_members, still, still_d) <= 1.0) if len(still_members) >= 2 else np.zeros(n, bool)
+    proven = int(np.sum(~still_fit[members])) >= 2
+    # that group is the attacker's only if the maneuver moved its members differently: legitimate peaks agree there
+    # only as far as they moved alike, and a consensus's members lie within one tolerance of its centre, so within two
+    # of each other; beyond 2.5 (noise) they are not all legitimate
+    attackers = any(mismatch(i, j, moved, moved_d) > 2.5 for i in still_members for j in still_members if i < j)
+    static = still_fit if attackers else np.zeros(n, bool)
     out = []
     for i, p in enumerate(peaks):
         e = errors[i]
-        if len(members) < 2:
-            out.append(PeakVerdict(p.prn, p.peak_id, False, False, float(e), "no consensus clock"))
+        if len(members) < 2 or not (proven or static[i]):
+            out.append(PeakVerdict(p.prn, p.peak_id, False, False, float(e), "no consensus clock" if len(members) < 2
+                                   else "no proven consensus clock"))
+        elif e <= 1.0 and (static[i] or not proven):
+            out.append(PeakVerdict(p.prn, p.peak_id, False, False, float(e),
+                                   "agrees with the vehicle's motion and with a receiver that did not move alike"))
         elif e <= 1.0 and sig[i] < min_signature_m:
             # agrees with the clock, but the maneuver barely moved along this line of sight: not proven
             out.append(PeakVerdict(p.prn, p.peak_id, False, False, float(e),
