@@ -101,15 +101,15 @@ def test_a_guess_continuity_confirms_is_resolved_and_one_it_refutes_is_swapped_t
     for prn in (5, 9):
         cancelled_on_a_guess(prn)
     assert not guard.resolved(5) and not guard.resolved(9)
-    guard.identified_by_continuity(5, cancelled_is_attacker=True, t_s=30.0)
+    guard.identified(5, cancelled_is_attacker=True, t_s=30.0)
     assert guard.resolved(5)
     # the cancelled peak was the legitimate one: the cancellation is dropped and the PRN examined afresh
-    guard.identified_by_continuity(9, cancelled_is_attacker=False, t_s=30.0)
+    guard.identified(9, cancelled_is_attacker=False, t_s=30.0)
     assert 9 not in guard.cancel_started and 9 not in guard.alarmed_prns and 9 not in guard.detector.alarmed
     assert not guard.resolved(9) and 9 not in guard.gave_up
     for _ in range(MAX_SWAPS):       # and if it keeps coming back to it, given up
         cancelled_on_a_guess(9)
-        guard.identified_by_continuity(9, cancelled_is_attacker=False, t_s=31.0)
+        guard.identified(9, cancelled_is_attacker=False, t_s=31.0)
     assert not guard.resolved(9) and "legitimate" in guard.gave_up[9]
 
 
@@ -145,3 +145,28 @@ def test_known_prns_correct_the_prediction_of_a_drag_before_the_alarm():
     # known PRNs that disagree with any one position and clock correct nothing
     c.refine(t * FS, {**{p: chips_at(p, ORIGIN) for p in (1, 2, 3, 4)}, 5: chips_at(5, ORIGIN, 80.0)}, predicted)
     assert c.correction is None
+
+
+def test_with_no_maneuver_to_decide_a_guess_falls_back_on_the_power_relation_continuity_showed():
+    """Continuity named the attacker's peak on three PRNs (it appeared after the receiver had the other), each the
+    stronger by 3-5 dB. A later alarm with no earlier lock and no maneuver to come is decided by that relation, not
+    guessed; where the attacker was the weaker on one of them, no relation holds and it stays a guess."""
+    from semperfi.defense.config import load_config
+    from semperfi.defense.detector import Alarm, PeakPair
+    from semperfi.defense.guard import SpoofGuard
+    from semperfi.receiver import Peak
+
+    def alarm(prn, attacker_metric, twin_metric, newcomer):
+        attacker, twin = Peak(prn, 100.0, 1000.0, attacker_metric, 45.0), Peak(prn, 102.0, 1000.0, twin_metric, 42.0)
+        pair = PeakPair(prn, attacker, twin, 2.0, "caf")
+        return Alarm(20.0, prn, pair, 100.0 if newcomer else None)
+
+    for weaker_on_one, guessed in ((False, False), (True, True)):
+        guard = SpoofGuard(load_config(None, []), 2e6)
+        started = {}
+        guard._start_cancelling = lambda prn, t_s, choice: started.setdefault(prn, choice)
+        for prn, gap in zip((3, 5, 7), (2.0, 3.0, 0.5 if weaker_on_one else 2.5)):
+            guard._on_alarm(alarm(prn, 40.0 * gap, 40.0, newcomer=True), 20.0)
+        guard._on_alarm(alarm(9, 100.0, 40.0, newcomer=False), 21.0)   # the stronger peak at 100.0 chips
+        assert [started[p].guessed for p in (3, 5, 7)] == [False] * 3
+        assert started[9].guessed == guessed and started[9].adversarial.code_phase_chips == 100.0, started[9]

@@ -6,7 +6,6 @@
 Used in front of the receiver chain (DefendedReceiver) and on its own as the plug-in filter (semperfi clean).
 """
 
-import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -18,7 +17,7 @@ from .canceller import JOINT_WITHIN_CHIPS, Canceller, CancellerConfig, biased_tw
 from .detector import (TWO_PATH_BLOCK_S, Alarm, DetectorConfig, SpoofingDetector, auxiliary_peaks, examinable,
                        hidden_pair, in_units_of, is_cross_talk)
 from .power import MAX_PLAUSIBLE_CN0_DBHZ, implausible_peaks
-from .policy import POWER_MARGIN_DB, Choice, by_power, choose, parse_policy
+from .policy import POWER_MARGIN_DB, Choice, by_power, choose, gap_db, parse_policy, power_relation
 
 WINDOW_MS = 40     # samples kept for examinations: acquisition looks at all 40 ms, the two-path test at the first 20
                    # (all 40 once the attack is known: the highest sensitivity)
@@ -182,6 +181,9 @@ class SpoofGuard:
         self.attacker_stronger: bool | None = None       # what the maneuver showed of the attacker's power, if clear
         self.maneuver_legit: set[int] = set()            # PRNs whose only peak the maneuver showed to follow the motion
         self._inference = ""
+        # PRN -> the attacker's peak's power over its twin's (dB), where continuity named the attacker's peak (it
+        # appeared after the receiver had the other): the power relation to fall back on when no maneuver decides
+        self._newcomer_gaps_db: dict[int, float] = {}
         # a spoofer was seen parting from signals it had been aligned with: a PRN's lone peak that predates the
         # attack may still be the two merged
         self.takeover = False
@@ -569,6 +571,13 @@ class SpoofGuard:
             self.awaiting[alarm.prn] = alarm
             self._emit("identification_pending", t_s, prn=alarm.prn, maneuver_s=self.maneuver.window_s)
             return
+        if choice is not None and not choice.guessed and alarm.newcomer_code_phase_chips is not None \
+                and choice.legitimate is not None:
+            self._newcomer_gaps_db[alarm.prn] = gap_db(choice.adversarial, choice.legitimate)
+        elif choice is not None and choice.guessed and (stronger := power_relation(self._newcomer_gaps_db)) is not None:
+            why = (f"inferred: on the {len(self._newcomer_gaps_db)} PRNs where the attacker's peak appeared after the "
+                   f"receiver had the other, it was the {'stronger' if stronger else 'weaker'}")
+            choice = by_power(alarm, stronger, why) or choice
         self._start_cancelling(alarm.prn, t_s, choice)
 
     def _follow_through_maneuver(self, cafs: dict) -> None:
@@ -622,13 +631,11 @@ class SpoofGuard:
         for prn, v in one_peak.items():
             if prn in self.awaiting:
                 pair = self.awaiting[prn].pair
-                gap_db = 10 * math.log10(max(pair.main.metric, pair.auxiliary.metric, 1e-9) /
-                                         max(min(pair.main.metric, pair.auxiliary.metric), 1e-9))
-                gaps_db[prn] = gap_db if v.adversarial else -gap_db
-        relation = {g > 0 for g in gaps_db.values()}
+                gap = abs(gap_db(pair.main, pair.auxiliary))
+                gaps_db[prn] = gap if v.adversarial else -gap
         self._emit("attacker_power", t_s, gaps_db={prn: round(g, 1) for prn, g in gaps_db.items()})
-        if len(gaps_db) >= 3 and len(relation) == 1 and min(map(abs, gaps_db.values())) >= POWER_MARGIN_DB / 2:
-            self.attacker_stronger = relation.pop()
+        self.attacker_stronger = power_relation(gaps_db)
+        if self.attacker_stronger is not None:
             self._inference = (f"inferred: on the {len(gaps_db)} PRNs the maneuver decided, the attacker's peak was "
                                f"the {'stronger' if self.attacker_stronger else 'weaker'}")
         for prn, alarm in list(self.awaiting.items()):
@@ -682,10 +689,10 @@ class SpoofGuard:
         pair = followers.get((prn, 0)), followers.get((prn, 1))
         if self.attacker_stronger is None or None in pair:
             return None, None, ""
-        gap_db = pair[0].mean_cn0_dbhz() - pair[1].mean_cn0_dbhz()
-        if not abs(gap_db) >= POWER_MARGIN_DB:   # NaN too: no power relation to apply
+        gap = pair[0].mean_cn0_dbhz() - pair[1].mean_cn0_dbhz()
+        if not abs(gap) >= POWER_MARGIN_DB:   # NaN too: no power relation to apply
             return None, None, ""
-        adv = 0 if (gap_db > 0) == self.attacker_stronger else 1
+        adv = 0 if (gap > 0) == self.attacker_stronger else 1
         return pair[adv], pair[1 - adv], self._inference
 
     def cancel_by_power(self, prn: int, adversarial: Peak, legitimate: Peak, t_s: float) -> None:

@@ -65,3 +65,17 @@ def by_power(alarm: Alarm, attacker_stronger: bool, reason: str) -> Choice | Non
     if 10 * math.log10(max(stronger.metric, 1e-9) / max(weaker.metric, 1e-9)) < POWER_MARGIN_DB:
         return None
     return Choice(stronger, weaker, False, reason) if attacker_stronger else Choice(weaker, stronger, False, reason)
+
+
+def gap_db(adversarial: Peak, legitimate: Peak) -> float:
+    """How much stronger the attacker's peak is than its twin (dB; negative: weaker), by their metrics."""
+    return 10 * math.log10(max(adversarial.metric, 1e-9) / max(legitimate.metric, 1e-9))
+
+
+def power_relation(gaps_db: dict[int, float]) -> bool | None:
+    """Whether the attacker's peak is the stronger, from PRNs where its peak is known (PRN -> gap_db): one answer on
+    three or more, each clear of the noise of one look's metrics; None otherwise."""
+    relation = {g > 0 for g in gaps_db.values()}
+    if len(gaps_db) >= 3 and len(relation) == 1 and min(map(abs, gaps_db.values())) >= POWER_MARGIN_DB / 2:
+        return relation.pop()
+    return None
