@@ -168,12 +168,21 @@ def test_without_the_turn_a_3_km_error_calls_legitimate_peaks_adversarial():
 def test_when_every_followed_peak_is_the_attackers_none_is_cleared():
     """A takeover of every PRN with each twin merged under its spoofer's peak: one followed peak per PRN, all the
     attacker's. Those whose lines of sight the maneuver moved alike agree on a clock as legitimate peaks would; they
-    agree as well with a receiver that did not move, so they are not cleared (clearing one cancels its twin)."""
+    agree as well with a receiver that did not move, so they are not cleared (clearing one cancels its twin); and all
+    together they fix one track, off the vehicle's: all flagged where the maneuver moved the vehicle enough."""
     cleared = flagged = 0
     for seed in range(50):
         peaks, los, imu, _, _ = scene(seed, spoofed=tuple(range(1, 9)))
         verdicts = identify_peaks([p for p in peaks if p.peak_id == 1], los, imu)
         cleared += sum(v.decided and not v.adversarial for v in verdicts)
         flagged += sum(v.decided and v.adversarial for v in verdicts)
-    assert cleared == 0, cleared   # 104 of the 400 were, before the check against a receiver that did not move
-    assert flagged >= 0.5 * 50 * 8, flagged
+    assert cleared == 0, cleared   # 104 of the 400 were, before the checks against a static receiver and one track
+    assert flagged >= 0.85 * 50 * 8, flagged   # 371: the rest on maneuvers too small to tell
+
+
+def test_legitimate_peaks_alone_never_fix_a_track_off_the_vehicles():
+    """The one-track test on legitimate peaks only, with the paper's worst IMU: their track is the INS's error off,
+    which stays under TRACK_OFF_TOLERANCES tolerances (2.3 at most over these 200 maneuvers)."""
+    for seed in range(200):
+        peaks, los, imu, _, _ = scene(seed)
+        assert not any(v.adversarial for v in identify_peaks(peaks, los, imu)), seed

@@ -39,6 +39,9 @@ INS_DRIFT_M = 2.0
 # seminorm (such a drift's is at most half its range); the vehicle flies the plan late and through gusts, its spread
 # 0.9 of the plan's or more (95% of simulated flights). Sent with an alarm, for the flight side's draw
 REQUIRED_SPREAD_M = (MIN_SIGNATURE_M + INS_DRIFT_M / 2) / 0.9
+# a legitimate set's track is the INS's error off: the LS offset amplifies it (geometry), to 2.3 tolerances on 200
+# synthetic maneuvers with the paper's worst IMU (tests/test_identifier.py), against 1.9 and more for a spoofer's set
+TRACK_OFF_TOLERANCES = 3.0
 MAX_POSITION_ERROR_M = 30e3   # beyond this the lines of sight themselves are wrong, not just the prediction
 
 
@@ -151,7 +154,7 @@ def identify_peaks(peaks, los, imu: ImuTrack, range_tol_m: float = 4.5, doppler_
     d_p = imu.position_at(t) - imu.position_at(t[:1])
     v = imu.velocity_at(t)
     dv = v - v[:1]
-    res, sig, res_d, turn, moved, moved_d = [], [], [], [], [], []
+    res, sig, res_d, turn, moved, moved_d, us = [], [], [], [], [], [], []
     for p in peaks:
         if p.prn not in los:
             raise ValueError(f"no line of sight for PRN {p.prn}")
@@ -161,6 +164,7 @@ def identify_peaks(peaks, los, imu: ImuTrack, range_tol_m: float = 4.5, doppler_
         rho = np.interp(t, p.t_s, p.pseudorange_m)
         sat = np.interp(t, L.t_s, L.sat_range_change_m)
         proj = d_p @ u
+        us.append(u)
         moved.append(proj)
         moved_d.append(dv @ u)
         res.append((rho - rho[0]) - (sat - sat[0]) + proj)
@@ -262,6 +266,10 @@ def identify_peaks(peaks, los, imu: ImuTrack, range_tol_m: float = 4.5, doppler_
     # of each other; beyond 2.5 (noise) they are not all legitimate
     attackers = any(mismatch(i, j, moved, moved_d) > 2.5 for i in still_members for j in still_members if i < j)
     static = still_fit if attackers else np.zeros(n, bool)
+    off_m = _another_track_m(raw, np.array(us), range_tol_m)
+    if off_m is not None:
+        return [PeakVerdict(p.prn, p.peak_id, True, True, float(e), f"with the others, fixes a track {off_m:.0f} m "
+                            "(rms) off the vehicle's") for p, e in zip(peaks, errors)]
     out = []
     for i, p in enumerate(peaks):
         e = errors[i]
@@ -290,3 +298,21 @@ def identify_peaks(peaks, los, imu: ImuTrack, range_tol_m: float = 4.5, doppler_
             passed[v.prn] = passed.get(v.prn, 0) + 1
     return [PeakVerdict(v.prn, v.peak_id, False, False, v.score, "several peaks of this PRN follow the motion")
             if passed.get(v.prn, 0) > 1 and v.decided and not v.adversarial else v for v in out]
+
+
+def _another_track_m(raw: np.ndarray, u: np.ndarray, range_tol_m: float) -> float | None:
+    """How far (rms, m, horizontally) from the INS track the track lies that all the peaks fix together, when each of them lies
+    within the tolerance of it and it is off by more than TRACK_OFF_TOLERANCES tolerances; None otherwise. A peak's residual is
+    clock + u . (INS track - the track its range follows): an attacker makes its peaks one consistent set, so when
+    every followed peak is the attacker's (a takeover of every PRN, each twin merged under its spoofer) they fit one
+    clock and one offset, and no consensus among them is proven (the paper's test, on the peaks' carrier ranges).
+    A set mixing legitimate peaks with the attacker's fits no one track. Needs one peak more than the four unknowns."""
+    if len(raw) < 5:
+        return None
+    h = np.column_stack([np.ones(len(raw)), u])
+    sol = np.linalg.lstsq(h, raw, rcond=None)[0]
+    if np.any(np.sqrt(np.mean((raw - h @ sol) ** 2, axis=1)) > range_tol_m):
+        return None
+    off_m = float(np.sqrt(np.mean(np.sum(sol[1:3] ** 2, axis=0))))   # horizontal: the vertical shares the clock's
+    return off_m if off_m > TRACK_OFF_TOLERANCES * range_tol_m else None
+
