@@ -123,3 +123,17 @@ def test_every_gps_input_is_judged_against_the_truth_at_its_fixs_time(tmp_path):
     rows = judge_gps_input(tmp_path, t0)
     assert [(t, ft) for t, ft, _, _ in rows] == [(5.0, GPS_FIX_3D), (6.0, 1)]
     assert rows[0][2] == pytest.approx(3.0, abs=0.01) and math.isnan(rows[1][2])
+
+
+def test_every_spell_without_a_fix_after_the_attack_is_counted_not_only_the_first():
+    """A takeover's run on SITL: a tenth of a second without a fix as the attack began, then 24 s until the verdict.
+    The loop's first-of-each-kind marks caught only the blip; the spells come from every GPS_INPUT."""
+    from pathlib import Path
+
+    from semperfi.eval.autopilot_loop import LoopResult
+
+    rows = [(t / 10, GPS_FIX_3D if not (760 <= t < 761 or 805 <= t < 1045) else 1, 0.5, 2.0) for t in range(700, 1200)]
+    result = LoopResult(Path("."), phases={"attack": 75.2}, gps_errors=rows)
+    assert [(round(a, 1), round(b, 1)) for a, b in result.outages] == [(76.0, 76.1), (80.5, 104.5)]
+    rows[-100:] = [(t, 1, math.nan, 9999.0) for t, _, _, _ in rows[-100:]]
+    assert math.isnan(LoopResult(Path("."), phases={"attack": 75.2}, gps_errors=rows).outages[-1][1])

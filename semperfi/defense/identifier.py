@@ -301,12 +301,13 @@ def identify_peaks(peaks, los, imu: ImuTrack, range_tol_m: float = 4.5, doppler_
 
 
 def _another_track_m(raw: np.ndarray, u: np.ndarray, range_tol_m: float) -> float | None:
-    """How far (rms, m, horizontally) from the INS track the track lies that all the peaks fix together, when each of them lies
-    within the tolerance of it and it is off by more than TRACK_OFF_TOLERANCES tolerances; None otherwise. A peak's residual is
-    clock + u . (INS track - the track its range follows): an attacker makes its peaks one consistent set, so when
-    every followed peak is the attacker's (a takeover of every PRN, each twin merged under its spoofer) they fit one
-    clock and one offset, and no consensus among them is proven (the paper's test, on the peaks' carrier ranges).
-    A set mixing legitimate peaks with the attacker's fits no one track. Needs one peak more than the four unknowns."""
+    """How far (rms, m, horizontally) from the INS track lies the track all the peaks fix together, when each of
+    them lies within the tolerance of it and it is off by more than TRACK_OFF_TOLERANCES tolerances; None otherwise.
+    A peak's residual is clock + u . (INS track - the track its range follows): an attacker makes its peaks one
+    consistent set, so when every followed peak is the attacker's (a takeover of every PRN, each twin merged under
+    its spoofer) they fit one clock and one offset, and no consensus among them is proven (the paper's test, on the
+    peaks' carrier ranges). A set mixing legitimate peaks with the attacker's fits no one track. Needs one peak more
+    than the four unknowns."""
     if len(raw) < 5:
         return None
     h = np.column_stack([np.ones(len(raw)), u])

@@ -73,6 +73,20 @@ class LoopResult:
         used = [e for _, ft, e, _ in self.gps_errors if ft >= GPS_FIX_3D]
         return max(used) if used else math.nan
 
+    @property
+    def outages(self) -> list[tuple[float, float]]:
+        """(first GPS_INPUT without a 3D fix, first with one again) for each spell without one after the attack
+        began; the end is NaN when the fix never came back. The loop's own marks are the first of each kind, which a
+        spell of a tenth of a second (a static attacker decided by continuity) can be."""
+        start_s, spells, began = self.phases.get("attack", math.inf), [], None
+        for t, ft, _, _ in self.gps_errors:
+            if t >= start_s and ft < GPS_FIX_3D and began is None:
+                began = t
+            elif ft >= GPS_FIX_3D and began is not None:
+                spells.append((began, t))
+                began = None
+        return spells + ([(began, math.nan)] if began is not None else [])
+
 
 class SitlWorld(threading.Thread):
     """Renders cfg's scenario around SITL's vehicle into `out` on SITL's clock: chunk k is written once the truth
@@ -364,6 +378,11 @@ def report(result: LoopResult) -> list[str]:
         errors = np.array([e for _, e in used])
         lines.append(f"  3D fixes against SITL's truth: median {np.median(errors):.1f} m, worst {errors.max():.1f} m "
                      f"({int(np.sum(errors > 10.0))} over 10 m)")
+    spells = result.outages
+    if spells:
+        longest = max(spells, key=lambda s: s[1] - s[0] if math.isfinite(s[1]) else math.inf)
+        lines.append(f"  without a fix after the attack: {len(spells)} spell(s), the longest {longest[0]:.1f}-"
+                     f"{longest[1]:.1f} s ({longest[1] - longest[0]:.1f} s)")
     if math.isfinite(result.end_error_m):
         lines.append(f"the vehicle ends {result.end_error_m:.1f} m from where it was commanded")
     try:
@@ -399,12 +418,14 @@ def plot(result: LoopResult) -> Path:
         ax.plot(g[used, 0], g[used, 3], "-", lw=0.8, color="0.5", label="its stated horizontal accuracy (1 sigma)")
         tx.plot(g[:, 0], g[:, 1], drawstyle="steps-post", color="k")
     ax.axhline(10.0, color="tab:red", ls=":", lw=1, label="10 m")
-    marks = {"attack": ("attacker on", "tab:red"), "autopilot_no_fix": ("alarm: no fix to the autopilot", "tab:orange"),
-             "autopilot_fix_back": ("recovered: true fix again", "tab:green")}
-    for name, (label, color) in marks.items():
-        if name in result.phases:
+    marks = [(result.phases.get("attack"), "attacker on", "tab:red")]
+    for k, (began, ended) in enumerate(result.outages):   # each spell without a fix, not only the first
+        marks += [(began, "alarm: no fix to the autopilot" if k == 0 else None, "tab:orange"),
+                  (ended, "recovered: true fix again" if k == 0 else None, "tab:green")]
+    for t, label, color in marks:
+        if t is not None and math.isfinite(t):
             for a in (ax, tx):
-                a.axvline(result.phases[name], color=color, ls="--", lw=1, label=label if a is ax else None)
+                a.axvline(t, color=color, ls="--", lw=1, label=label if a is ax else None)
     done = _first(out / "flight.jsonl", "maneuver_done")
     if done and "t_boot0_s" in result.phases:   # the flight side times it in vehicle boot seconds
         t0 = result.phases["t_boot0_s"]
