@@ -39,9 +39,7 @@ INS_DRIFT_M = 2.0
 # seminorm (such a drift's is at most half its range); the vehicle flies the plan late and through gusts, its spread
 # 0.9 of the plan's or more (95% of simulated flights). Sent with an alarm, for the flight side's draw
 REQUIRED_SPREAD_M = (MIN_SIGNATURE_M + INS_DRIFT_M / 2) / 0.9
-# a legitimate set's track is the INS's error off: the LS offset amplifies it (geometry), to 2.3 tolerances on 200
-# synthetic maneuvers with the paper's worst IMU (tests/test_identifier.py), against 1.9 and more for a spoofer's set
-TRACK_OFF_TOLERANCES = 3.0
+MIN_SHAPE_M = 1.0   # a maneuver's rms beyond a quadratic in time, for the one-track test to hold it against the INS
 MAX_POSITION_ERROR_M = 30e3   # beyond this the lines of sight themselves are wrong, not just the prediction
 
 
@@ -266,10 +264,10 @@ def identify_peaks(peaks, los, imu: ImuTrack, range_tol_m: float = 4.5, doppler_
     # of each other; beyond 2.5 (noise) they are not all legitimate
     attackers = any(mismatch(i, j, moved, moved_d) > 2.5 for i in still_members for j in still_members if i < j)
     static = still_fit if attackers else np.zeros(n, bool)
-    off_m = _another_track_m(raw, np.array(us), range_tol_m)
-    if off_m is not None:
-        return [PeakVerdict(p.prn, p.peak_id, True, True, float(e), f"with the others, fixes a track {off_m:.0f} m "
-                            "(rms) off the vehicle's") for p, e in zip(peaks, errors)]
+    missing = _another_track(raw, np.array(us), t, d_p, range_tol_m)
+    if missing is not None:
+        return [PeakVerdict(p.prn, p.peak_id, True, True, float(e), f"with the others, fixes a track without the "
+                            f"vehicle's maneuver ({missing:.2f} of it missing)") for p, e in zip(peaks, errors)]
     out = []
     for i, p in enumerate(peaks):
         e = errors[i]
@@ -300,20 +298,31 @@ def identify_peaks(peaks, los, imu: ImuTrack, range_tol_m: float = 4.5, doppler_
             if passed.get(v.prn, 0) > 1 and v.decided and not v.adversarial else v for v in out]
 
 
-def _another_track_m(raw: np.ndarray, u: np.ndarray, range_tol_m: float) -> float | None:
-    """How far (rms, m, horizontally) from the INS track lies the track all the peaks fix together, when each of
-    them lies within the tolerance of it and it is off by more than TRACK_OFF_TOLERANCES tolerances; None otherwise.
-    A peak's residual is clock + u . (INS track - the track its range follows): an attacker makes its peaks one
-    consistent set, so when every followed peak is the attacker's (a takeover of every PRN, each twin merged under
-    its spoofer) they fit one clock and one offset, and no consensus among them is proven (the paper's test, on the
-    peaks' carrier ranges). A set mixing legitimate peaks with the attacker's fits no one track. Needs one peak more
-    than the four unknowns."""
+def _another_track(raw: np.ndarray, u: np.ndarray, t: np.ndarray, d_p: np.ndarray,
+                   range_tol_m: float) -> float | None:
+    """The share of the vehicle's maneuver missing from the track all the peaks fix together, when each of them lies
+    within the tolerance of that track and the share is over half; None otherwise. A peak's residual is
+    clock + u . (INS track - the track its range follows): an attacker makes its peaks one consistent set, so when
+    every followed peak is the attacker's (a takeover of every PRN, each twin merged under its spoofer) they fit one
+    clock and one offset e(t), and no consensus among them is proven. Its track cannot hold a pseudorandom maneuver:
+    e is the maneuver itself (less a drag the attacker chose), where a legitimate set's e is the INS's drift. Both
+    are compared horizontally with a quadratic in time taken out (a bias's drift, a drag at constant speed or
+    acceleration): on 200 synthetic maneuvers with the paper's worst IMU the share is 0.89-1.13 for the attacker's
+    sets and -0.18-0.16 for legitimate ones (tests/test_identifier.py). A set mixing both fits no one track. Needs one
+    peak more than the four unknowns, and a maneuver whose shape stands out of that quadratic by MIN_SHAPE_M."""
     if len(raw) < 5:
         return None
     h = np.column_stack([np.ones(len(raw)), u])
     sol = np.linalg.lstsq(h, raw, rcond=None)[0]
     if np.any(np.sqrt(np.mean((raw - h @ sol) ** 2, axis=1)) > range_tol_m):
         return None
-    off_m = float(np.sqrt(np.mean(np.sum(sol[1:3] ** 2, axis=0))))   # horizontal: the vertical shares the clock's
-    return off_m if off_m > TRACK_OFF_TOLERANCES * range_tol_m else None
+    v = np.vander(t - t[0], 3)
 
+    def shape(x):
+        return x - v @ np.linalg.lstsq(v, x, rcond=None)[0]
+    offset, maneuver = shape(sol[1:3].T), shape(d_p[:, :2])
+    power = float(np.sum(maneuver ** 2))
+    if power < MIN_SHAPE_M ** 2 * len(t):
+        return None
+    share = float(np.sum(offset * maneuver)) / power
+    return share if share > 0.5 else None
