@@ -40,6 +40,9 @@ INS_DRIFT_M = 2.0
 # 0.9 of the plan's or more (95% of simulated flights). Sent with an alarm, for the flight side's draw
 REQUIRED_SPREAD_M = (MIN_SIGNATURE_M + INS_DRIFT_M / 2) / 0.9
 MIN_SHAPE_M = 1.0   # a maneuver's rms beyond a quadratic in time, for the one-track test to hold it against the INS
+# a legitimate set's track is the INS's error off (the LS offset amplifies it: to 2.3 tolerances over 200 synthetic
+# maneuvers with the paper's worst IMU): beyond this many tolerances, the set's track is not the vehicle's
+TRACK_OFF_TOLERANCES = 3.0
 MAX_POSITION_ERROR_M = 30e3   # beyond this the lines of sight themselves are wrong, not just the prediction
 
 
@@ -264,10 +267,9 @@ def identify_peaks(peaks, los, imu: ImuTrack, range_tol_m: float = 4.5, doppler_
     # of each other; beyond 2.5 (noise) they are not all legitimate
     attackers = any(mismatch(i, j, moved, moved_d) > 2.5 for i in still_members for j in still_members if i < j)
     static = still_fit if attackers else np.zeros(n, bool)
-    missing = _another_track(raw, np.array(us), t, d_p, range_tol_m)
-    if missing is not None:
-        return [PeakVerdict(p.prn, p.peak_id, True, True, float(e), f"with the others, fixes a track without the "
-                            f"vehicle's maneuver ({missing:.2f} of it missing)") for p, e in zip(peaks, errors)]
+    why = _another_track(raw, np.array(us), t, d_p, range_tol_m)
+    if why is not None:
+        return [PeakVerdict(p.prn, p.peak_id, True, True, float(e), why) for p, e in zip(peaks, errors)]
     out = []
     for i, p in enumerate(peaks):
         e = errors[i]
@@ -299,17 +301,21 @@ def identify_peaks(peaks, los, imu: ImuTrack, range_tol_m: float = 4.5, doppler_
 
 
 def _another_track(raw: np.ndarray, u: np.ndarray, t: np.ndarray, d_p: np.ndarray,
-                   range_tol_m: float) -> float | None:
-    """The share of the vehicle's maneuver missing from the track all the peaks fix together, when each of them lies
-    within the tolerance of that track and the share is over half; None otherwise. A peak's residual is
+                   range_tol_m: float) -> str | None:
+    """Why all the peaks together are the attacker's, or None. A peak's residual is
     clock + u . (INS track - the track its range follows): an attacker makes its peaks one consistent set, so when
     every followed peak is the attacker's (a takeover of every PRN, each twin merged under its spoofer) they fit one
-    clock and one offset e(t), and no consensus among them is proven. Its track cannot hold a pseudorandom maneuver:
-    e is the maneuver itself (less a drag the attacker chose), where a legitimate set's e is the INS's drift. Both
-    are compared horizontally with a quadratic in time taken out (a bias's drift, a drag at constant speed or
-    acceleration): on 200 synthetic maneuvers with the paper's worst IMU the share is 0.89-1.13 for the attacker's
-    sets and -0.18-0.16 for legitimate ones (tests/test_identifier.py). A set mixing both fits no one track. Needs one
-    peak more than the four unknowns, and a maneuver whose shape stands out of that quadratic by MIN_SHAPE_M."""
+    clock and one offset e(t) = INS track - their track, and no consensus among them is proven. A set mixing
+    legitimate peaks with the attacker's fits no one track. A legitimate set's e is the INS's drift; the attacker's
+    set is told by either of:
+    - the maneuver missing from its track: e holds the maneuver's shape (compared horizontally with a quadratic in
+      time taken out: a drift, a drag at constant speed or acceleration). Over 200 synthetic maneuvers with the
+      paper's worst IMU, 0.89-1.13 of it is missing for the attacker's sets, -0.18-0.16 for legitimate ones, whatever
+      the INS's drift (tests/test_identifier.py). An attacker that follows the vehicle (a takeover steering off the
+      true track) puts the maneuver in its track; then:
+    - its track leaving the INS's by more than the INS can drift (TRACK_OFF_TOLERANCES tolerances, rms): the paper's
+      test, on the peaks' carrier ranges; as sound as the INS's stated bound.
+    Needs one peak more than the four unknowns."""
     if len(raw) < 5:
         return None
     h = np.column_stack([np.ones(len(raw)), u])
@@ -322,7 +328,10 @@ def _another_track(raw: np.ndarray, u: np.ndarray, t: np.ndarray, d_p: np.ndarra
         return x - v @ np.linalg.lstsq(v, x, rcond=None)[0]
     offset, maneuver = shape(sol[1:3].T), shape(d_p[:, :2])
     power = float(np.sum(maneuver ** 2))
-    if power < MIN_SHAPE_M ** 2 * len(t):
-        return None
-    share = float(np.sum(offset * maneuver)) / power
-    return share if share > 0.5 else None
+    share = float(np.sum(offset * maneuver)) / power if power >= MIN_SHAPE_M ** 2 * len(t) else 0.0
+    if share > 0.5:
+        return f"with the others, fixes a track without the vehicle's maneuver ({share:.2f} of it missing)"
+    off_m = float(np.sqrt(np.mean(np.sum(sol[1:3] ** 2, axis=0))))
+    if off_m > TRACK_OFF_TOLERANCES * range_tol_m:
+        return f"with the others, fixes a track {off_m:.0f} m (rms) off the vehicle's INS"
+    return None
