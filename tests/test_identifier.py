@@ -190,3 +190,15 @@ def test_legitimate_peaks_alone_never_fix_a_track_without_the_maneuver():
         drift = 0.5 * 0.05 * (t - t[0]) ** 2
         biased = ImuTrack(imu.t_s, imu.north_m + 0.6 * drift, imu.east_m - 0.8 * drift, imu.down_m)
         assert not any("fixes a track" in v.reason for v in identify_peaks(peaks, los, biased)), seed
+
+
+def test_an_attacker_steering_off_the_vehicles_true_track_is_told_by_its_drag():
+    """A takeover that follows the vehicle (its claimed track is the true one plus a drag at 10 m/s east): its peaks
+    hold the maneuver, so only the drag tells them, beyond what the INS can drift."""
+    for seed in range(20):
+        peaks, los, imu, t, _ = scene(seed)
+        drag = np.outer(t - t[0], [0.0, 10.0, 0.0])
+        dragged = [PeakHistory(p.prn, 1, p.t_s, p.pseudorange_m - drag @ np.asarray(los[p.prn].u_ned), None)
+                   for p in peaks]
+        verdicts = identify_peaks(dragged, los, imu)
+        assert all(v.decided and v.adversarial and "off the vehicle's INS" in v.reason for v in verdicts), verdicts
