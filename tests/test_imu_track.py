@@ -34,3 +34,18 @@ def test_rejects_hostile_csv(tmp_path, text):
     path.write_text(text)
     with pytest.raises(ValueError):
         read_imu_csv(path)
+
+
+def test_a_long_hover_on_a_drifting_ins_is_not_the_maneuver():
+    """18 s of hover, the maneuver, 60 s of hover, on an INS 10 mm/s^2 off along north and 6 off along east: its
+    velocity error passes 0.8 m/s some 70 s in, a stretch 'moving' longer than the maneuver. The drift, fitted on
+    what is still, is taken out."""
+    legs = (Leg(8.0, 0.0, 0.0, 6.0), Leg(0.0, 8.0, 0.0, 6.0))
+    t, n, e, _ = plan_trajectory(legs, ManeuverLimits(dt_s=0.1))
+    before, after = np.arange(0, 18, 0.1), np.arange(0, 60, 0.1)
+    tt = np.r_[before, 18 + t, 18 + t[-1] + 0.1 + after]
+    nn = np.r_[np.zeros_like(before), n, np.full_like(after, n[-1])] + 0.5 * 0.010 * tt ** 2
+    ee = np.r_[np.zeros_like(before), e, np.full_like(after, e[-1])] + 0.5 * 0.006 * tt ** 2
+    from semperfi.defense.identifier import ImuTrack
+    start, end = find_maneuver(ImuTrack(tt, nn, ee, np.zeros_like(tt)))
+    assert abs(start - 18) < 1.5 and abs(end - (18 + t[-1])) < 1.5, (start, end)

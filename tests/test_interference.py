@@ -152,3 +152,13 @@ def test_acquire_run_and_clean_name_a_tone_and_exit_no_signal(tmp_path):
     assert clean.exit_code == EXIT_NO_SIGNAL and "+250.0 kHz" in clean.output, clean.output
     events = [json.loads(line) for line in (tmp_path / "clean.events.jsonl").read_text().splitlines()]
     assert any(e["event"] == "interference" for e in events)
+
+
+@pytest.mark.parametrize("n", [80_000, 80_001, 2_000, 64 * 16 - 1])
+def test_the_local_floor_equals_its_reference(n):
+    """The one-median floor against the 64-median loop, on an exponential spectrum with a few spurs; lengths that do
+    and do not divide into 64 parts."""
+    from semperfi.receiver.interference import _local_floor, _local_floor_reference
+    p = np.random.default_rng(n).exponential(1.0, n)
+    p[::997] *= 1e4
+    assert np.array_equal(_local_floor(p), _local_floor_reference(p))

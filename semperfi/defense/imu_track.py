@@ -14,6 +14,7 @@ from semperfi.defense.identifier import ImuTrack
 
 MAX_BYTES = 64 * 1024 * 1024
 COLUMNS = ("t_s", "north_m", "east_m", "down_m")
+DRIFT_ROUNDS = 3   # fits of the INS's velocity drift on what is still, each from the previous one's stillness
 
 
 def read_imu_csv(path) -> ImuTrack:
@@ -49,12 +50,22 @@ def read_imu_csv(path) -> ImuTrack:
 
 def find_maneuver(track: ImuTrack, speed_threshold_mps: float = 0.8, min_duration_s: float = 3.0,
                   pad_s: float = 0.5) -> tuple[float, float] | None:
-    """(start_s, end_s) of the longest stretch moving faster than the threshold (hover, maneuver, hover)."""
-    v = np.linalg.norm(track.velocity_at(track.t_s), axis=1)
+    """(start_s, end_s) of the longest stretch moving faster than the threshold (hover, maneuver, hover), the INS's
+    velocity drift taken out: a line in time per axis (an accelerometer bias's), fitted on the stretches found still
+    and found again. An INS 5 mm/s^2 off reads 0.8 m/s some 100 s into a hover: untaken, a long hover after the
+    maneuver was the longest stretch 'moving', and its window the one identified."""
+    v3 = track.velocity_at(track.t_s)
     # smooth over ~1 s so INS noise does not split the maneuver
     dt = float(np.median(np.diff(track.t_s)))
     k = max(1, int(round(1.0 / dt)))
-    v = np.convolve(v, np.ones(k) / k, mode="same")
+    drift = np.zeros_like(v3)
+    for _ in range(DRIFT_ROUNDS):
+        v = np.convolve(np.linalg.norm(v3 - drift, axis=1), np.ones(k) / k, mode="same")
+        still = v <= speed_threshold_mps
+        if np.count_nonzero(still) < 2 * k or np.ptp(track.t_s[still]) < min_duration_s:
+            break
+        slope, offset = np.polyfit(track.t_s[still], v3[still], 1)
+        drift = np.outer(track.t_s, slope) + offset
     moving = v > speed_threshold_mps
     best = None
     i = 0

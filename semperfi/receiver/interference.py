@@ -78,7 +78,7 @@ def _jn_text(jn_db: float) -> str:
 NONE = Interference()
 
 
-def _local_floor(p: np.ndarray) -> np.ndarray:
+def _local_floor_reference(p: np.ndarray) -> np.ndarray:
     """Each bin's noise floor: the median of its 64th of the band (robust to a few spur bins), as an exponential
     bin's mean."""
     n = p.size
@@ -88,6 +88,15 @@ def _local_floor(p: np.ndarray) -> np.ndarray:
     for lo, hi in zip(edges[:-1], edges[1:]):
         floor[lo:hi] = np.median(p[lo:hi]) / np.log(2.0)
     return floor
+
+
+def _local_floor(p: np.ndarray) -> np.ndarray:
+    """_local_floor_reference in one median over the 64 equal parts when the band divides into them (a look's whole
+    milliseconds do): 64 medians a look were 4 % of a defended run's time, on its main thread."""
+    n = p.size
+    if n < 64 * 16 or n % 64:
+        return _local_floor_reference(p)
+    return np.repeat(np.median(p.reshape(64, n // 64), axis=1) / np.log(2.0), n // 64)
 
 
 def _db(ratio: float) -> float:
