@@ -184,10 +184,11 @@ def identify_peaks(peaks, los, imu: ImuTrack, range_tol_m: float = 4.5, doppler_
     turn = np.array(turn) if all(g is not None for g in turn) else None
     use_d = all(r is not None for r in res_d)
     res_d = np.array(res_d) if use_d else None
+    moved, moved_d = np.array(moved), (np.array(moved_d) if use_d else None)
     tol_rate = L1_WAVELENGTH_M * doppler_tol_hz
     # the residuals of a receiver that did not move: a single transmitter's peaks all share one there (its own range
     # change to the vehicle), whatever the maneuver
-    still, still_d = raw - np.array(moved), (res_d - np.array(moved_d) if use_d else None)
+    still, still_d = raw - moved, (res_d - moved_d if use_d else None)
 
     def mismatch(i, j, r, r_d, detrend=False):
         d = r[i] - r[j]
@@ -258,7 +259,6 @@ def identify_peaks(peaks, los, imu: ImuTrack, range_tol_m: float = 4.5, doppler_
     # sight the maneuver moved alike agree on a clock as legitimate peaks would (ArduCopter SITL closed loop: a PRN
     # cleared so had its legitimate twin cancelled). The clock is proven by two of its peaks that such a receiver does
     # not explain.
-    moved, moved_d = np.array(moved), (np.array(moved_d) if use_d else None)
     still_members = consensus(still, still_d)
     still_fit = (against(still_members, still, still_d) <= 1.0) if len(still_members) >= 2 else np.zeros(n, bool)
     proven = int(np.sum(~still_fit[members])) >= 2
