@@ -113,6 +113,38 @@ def test_a_guess_continuity_confirms_is_resolved_and_one_it_refutes_is_swapped_t
     assert not guard.resolved(9) and "legitimate" in guard.gave_up[9]
 
 
+def test_the_maneuver_judges_a_guess_where_the_cancelled_track_is_and_nothing_it_cannot_compare():
+    """A PRN cancelled on a guess, its raw peak followed through the maneuver: the follower is compared with the
+    cancelled track at the track's latest code epoch (the canceller runs behind the raw stream). Where the follower
+    has no history there, nothing is judged: before, that counted as 'followed peak is not the cancelled one' and
+    dropped six right guesses at once."""
+    from types import SimpleNamespace
+
+    from semperfi.defense.config import load_config
+    from semperfi.defense.guard import SpoofGuard
+    from semperfi.receiver import Peak
+    guard = SpoofGuard(load_config(None, []), 2e6)
+    epoch = 123_456.0
+    for prn in (5, 9, 12):
+        guard.alarmed_prns.add(prn)
+        guard.detector.raise_alarm(prn, 20.0)
+        guard.cancel_started[prn] = 20.0
+        guard.verified.add(prn)
+        guard.guessed.add(prn)
+    channel = SimpleNamespace(ms=500, latest_epoch_sample=epoch)
+    guard.canceller.stages = [SimpleNamespace(tracks={p: SimpleNamespace(channel=channel) for p in (5, 9, 12)})]
+
+    def follower(chips):   # a peak at `chips` from the cancelled track, known only at its latest epoch
+        return SimpleNamespace(peak_at=lambda s: Peak(0, chips % 1023, 0.0, 10.0, 45.0) if s == epoch else None)
+
+    guard._judge_cancelled(5, follower(1022.9), adversarial=True, t_s=30.0)   # the cancelled peak, shown not to follow
+    assert guard.resolved(5)
+    guard._judge_cancelled(9, follower(0.8), adversarial=True, t_s=30.0)      # another peak did not follow
+    assert 9 not in guard.cancel_started and not guard.resolved(9)
+    guard._judge_cancelled(12, SimpleNamespace(peak_at=lambda s: None), adversarial=True, t_s=30.0)
+    assert 12 in guard.guessed and 12 in guard.cancel_started, "judged on nothing"
+
+
 def test_known_prns_correct_the_prediction_of_a_drag_before_the_alarm():
     """A spoofer dragged the tracked ranges 120 m east before the alarm (unseen: each range pulled less than the
     separation), so the anchor sits 120 m off. Five PRNs known legitimate measure that; the sixth, whose spoofer's

@@ -107,6 +107,23 @@ def test_two_ranges_pulled_together_are_detected(scene):
     assert detected >= 190, f"two ranges biased by 100 m: {detected}/200 detected (failed or both excluded)"
 
 
+def test_a_sky_that_agrees_only_without_two_ranges_is_not_trusted(scene):
+    """The protection levels bound the error under one faulty range: two ranges pulled apart are never excluded both
+    and called good (a spoofer from power-on, half the channels on it, made 5 of 8 agree 186 m off, HPL 30-74 m).
+    Asked for, a second exclusion is still made."""
+    _, _, h, sigma, _ = scene
+    rng = np.random.default_rng(6)
+    for trial in range(50):
+        y = rng.normal(0, sigma)
+        a, b = trial % len(sigma), (trial + 3) % len(sigma)
+        y[a] += 400.0
+        y[b] -= 400.0
+        r = integrity.fde(h, y, sigma, CFG)
+        assert r.status == "fail" and len(r.excluded) == 1 and not integrity.trusted(r.status), (r.status, r.excluded)
+        two = integrity.fde(h, y, sigma, replace(CFG, max_exclusions=2))
+        assert two.status == "excluded" and set(two.excluded) == {a, b}, (two.status, two.excluded)
+
+
 def test_four_satellites_are_unverifiable(scene):
     truth, obs, _, _, _ = scene
     fix = solve(obs[:4], 1.0, START.week, DEFAULT_IONO, raim=CFG)

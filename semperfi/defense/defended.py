@@ -309,6 +309,8 @@ class DefendedReceiver:
         self._note_rectified(rectified, fix.t_rx_s)
         if g.alarm_t_s is None:
             state = "nominal" if trusted(fix.raim) else "unverified"
+            if fix.raim == "fail":
+                g.ranges_disagree(fix.t_rx_s)
             if state == "nominal" and self.continuity is not None:
                 sample = fix.t_rx_s * self.inner.fs_hz
                 # every locked channel, not only the fix's: one below the mask or still without its own time has a

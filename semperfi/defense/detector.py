@@ -261,6 +261,7 @@ class SpoofingDetector:
         # guard says: hold; a time push's beat gives their separation, the fit this close only its own minimum spacing)
         self.held: set[int] = set()
         self.first_alarm_s: float | None = None
+        self.suspected = False                   # the guard's: the receiver's ranges disagree, no alarm yet
         self.single_looks: dict[int, int] = {}   # PRN -> consecutive sensitive looks that found one signal only
         self.close: dict[int, PeakPair] = {}     # PRN -> a second signal under its peak, closer than the separation
 
@@ -298,8 +299,8 @@ class SpoofingDetector:
 
     @property
     def sensitive(self) -> bool:
-        """The attack is known to be present: every PRN is examined at the highest sensitivity."""
-        return self.first_alarm_s is not None
+        """The attack is known to be present, or suspected: every PRN is examined at the highest sensitivity."""
+        return self.first_alarm_s is not None or self.suspected
 
     def pending(self) -> bool:
         """Whether a pair has been seen that is still to be confirmed (an alarmed PRN's was)."""

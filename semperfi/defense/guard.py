@@ -62,6 +62,7 @@ BEAT_STALE_S = 1.0     # a time push's beat unseen on a PRN this long: its separ
 COMMON_WAIT_S = 1.0    # a beat on a few PRNs alike, no alarm yet: how long the others have to show it too
 MAX_SWAPS = 2          # a PRN whose cancelled peak is found legitimate this often is given up
 ABSENT_MARGIN_S = 1.0  # a full search's absent PRNs stand this long past the next one's due time (then: search again)
+SUSPECT_FOR_S = 10.0   # ranges that disagree, no alarm yet: how long every look stays at the highest sensitivity
 EXAMINE_MAX_PEAKS = 16  # a strong spoofer's Doppler and code sidelobes are local maxima too: room for its twin
 
 
@@ -152,6 +153,7 @@ class SpoofGuard:
         self._cleaned = 0                                # cleaned samples produced
         self._next_exam = 0
         self._next_full = 0
+        self._suspect_until = 0                          # samples: looks at the highest sensitivity until then
         self.absent_prns: frozenset[int] = frozenset()   # what the latest full search found nothing of ...
         self._absent_until = 0                           # ... and until when that stands
         self.sky_interference = None                     # (what it found besides GPS, when), for the chain to tell
@@ -221,6 +223,7 @@ class SpoofGuard:
                 self._emit(kind, self._seen / self.fs_hz, **fields)
         if self._pending is not None and self._seen >= self._pending[0].seen + self._apply_after:
             self._apply_pending()
+        self.detector.suspected = self._seen < self._suspect_until
         starting = self.d["mode"] != "off" and self._seen < self._startup_samples
         if (self.d["mode"] != "off" and self._pending is None and self._seen >= self._next_exam
                 and self._raw.size >= self.window):
@@ -534,6 +537,16 @@ class SpoofGuard:
         return prn in self.merged and (prn not in self.detector.held
                                        or t_s - self._beat_seen_s.get(prn, -np.inf) <= BEAT_STALE_S)
 
+    def ranges_disagree(self, t_s: float) -> None:
+        """The receiver's ranges failed the integrity test beyond one faulty range, before any alarm: a sky that
+        mixes an attacker's signals with legitimate ones is one (a spoofer on from power-on, its twins merged under
+        its peaks, some channels on each: 5 of 8 ranges agreeing 186 m off). No PRN is named; the next looks, from
+        now, examine every PRN at the highest sensitivity for SUSPECT_FOR_S (multipath alone is the other cause)."""
+        if self.alarm_t_s is None and self._seen >= self._suspect_until:
+            self._next_exam = min(self._next_exam, self._seen)
+            self._emit("ranges_disagree", t_s, examine_for_s=SUSPECT_FOR_S)
+        self._suspect_until = self._seen + int(SUSPECT_FOR_S * self.fs_hz)
+
     def clock_alarm(self, t_s: float, event: dict) -> None:
         """The receiver clock moved as its oscillator cannot (defense/clock_guard): every range delayed alike, a
         seamless takeover's time push. No PRN is named (the attack alarm, alarm_t_s, stays the peaks'): it is the
@@ -605,7 +618,7 @@ class SpoofGuard:
         one_peak = {v.prn: v for v in ident.verdicts if v.decided and (v.prn, 1) not in ident.followers}
         for prn, v in one_peak.items():
             if prn in self.cancel_started:
-                self._judge_cancelled(prn, ident.followers[(prn, 0)].peak_at(now), v.adversarial, now, t_s)
+                self._judge_cancelled(prn, ident.followers[(prn, 0)], v.adversarial, t_s)
             elif prn not in self.awaiting and v.adversarial:
                 self.gave_up[prn] = "identified as the attacker's (maneuver), no legitimate twin found"
             elif prn not in self.awaiting:
@@ -668,15 +681,19 @@ class SpoofGuard:
                       "maneuver: the peak followed follows the vehicle's motion; the attacker's is the other path "
                       "under it")
 
-    def _judge_cancelled(self, prn: int, followed: Peak | None, adversarial: bool, sample: int, t_s: float) -> None:
+    def _judge_cancelled(self, prn: int, follower, adversarial: bool, t_s: float) -> None:
         """A PRN cancelled on a guess before the maneuver, its raw peak followed through it: the verdict says whether
         the guess was right (the followed peak is the cancelled one and did not follow the vehicle, or is the
-        other one and did)."""
-        if prn not in self.guessed or followed is None:
+        other one and did). The two are compared at the cancelled track's latest code epoch: the canceller runs
+        behind the raw stream, so the look's sample is not yet in its history. Nothing compared, nothing judged."""
+        if prn not in self.guessed:
             return
-        at_spoofer = any(chips_apart(followed.code_phase_chips, spoofer) < 0.5
-                         for _, spoofer in self.spoofers_at(prn, sample))
-        self.identified(prn, at_spoofer == adversarial, t_s, "maneuver: the peak followed through it")
+        tracks = [tr for st in self.canceller.stages if (tr := st.tracks.get(prn)) is not None and tr.channel.ms > 1]
+        # at its latest epoch, the track's code phase is 0 by definition
+        followed = [follower.peak_at(tr.channel.latest_epoch_sample) for tr in tracks]
+        at = [chips_apart(f.code_phase_chips, 0.0) < 0.5 for f in followed if f is not None]
+        if at:
+            self.identified(prn, any(at) == adversarial, t_s, "maneuver: the peak followed through it")
 
     def _verdict_pair(self, prn: int, decided: dict, flagged: dict, followers: dict):
         """(the attacker's follower, the legitimate one's, why) for an awaiting PRN at the verdict, or Nones: decided

@@ -537,7 +537,7 @@ class Receiver:
         i, t = config.section(self.cfg, "integrity", Integrity), self.cfg["tracking"]
         sigma = SigmaModel(dll_bw_hz=t["dll_bw_hz"], spacing_chips=t["spacing_chips"], integration_s=i.integration_s,
                            smoothing_s=self.cfg["pvt"]["smoothing_s"], floor_m=i.floor_m, atmosphere_m=i.atmosphere_m)
-        return IntegrityConfig(pfa=i.pfa, pmd=i.pmd, exclude=i.exclude, sigma=sigma)
+        return IntegrityConfig(pfa=i.pfa, pmd=i.pmd, exclude=i.exclude, max_exclusions=i.max_exclusions, sigma=sigma)
 
     def _fix_at(self, sample: float) -> None:
         raw = self.observations_at(sample)

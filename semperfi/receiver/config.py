@@ -48,6 +48,8 @@ class Integrity:                    # RAIM (receiver/integrity.py)
     pfa: float = key(1e-5, 1e-12, 0.5, doc="false-alarm probability of the residual test, per fix")
     pmd: float = key(1e-3, 1e-12, 0.5, doc="missed-detection probability for the protection levels")
     exclude: bool = key(True, doc="fault exclusion (else detection only)")
+    max_exclusions: int = key(1, 1, 12, doc="ranges excluded at most: the protection levels bound one fault; a sky "
+                                            "that needs more excluded fails the test")
     integration_s: float = key(0.001, 0.001, 0.02, unit="s", doc="DLL coherent integration in the code-noise model")
     floor_m: float = key(0.5, 0.0, 1000.0, unit="m", doc="orbit/clock/receiver error floor (1 sigma)")
     atmosphere_m: float = key(0.5, 0.0, 1000.0, unit="m",
