@@ -62,7 +62,7 @@ def by_power(alarm: Alarm, attacker_stronger: bool, reason: str) -> Choice | Non
     None when this pair's two peaks are too close in power to apply it."""
     main, aux = alarm.pair.main, alarm.pair.auxiliary
     stronger, weaker = (main, aux) if main.metric >= aux.metric else (aux, main)
-    if 10 * math.log10(max(stronger.metric, 1e-9) / max(weaker.metric, 1e-9)) < POWER_MARGIN_DB:
+    if gap_db(stronger, weaker) < POWER_MARGIN_DB:
         return None
     return Choice(stronger, weaker, False, reason) if attacker_stronger else Choice(weaker, stronger, False, reason)
 
