@@ -13,7 +13,7 @@ import numpy as np
 import pymap3d
 import pytest
 
-from semperfi.eval.autopilot_loop import GPS_FIX_3D, SitlWorld, judge_gps_input
+from semperfi.eval.autopilot_loop import GPS_FIX_3D, SitlWorld, judge_gps_input, truth_at
 from semperfi.sim.scenario import load_scenario
 from semperfi.sim.simulate import CHUNK_S
 
@@ -103,6 +103,23 @@ def test_the_world_renders_on_the_autopilots_clock_from_its_truth_and_switches_t
     lat, lon, _ = pymap3d.ecef2geodetic(*pos[0])
     n, e, _ = pymap3d.geodetic2ned(lat, lon, 0.0, *autopilot.state(world.t_boot0_s + 1.5)[1:3], 0.0)
     assert math.hypot(n, e) < 0.05 and np.linalg.norm(vel[0]) == pytest.approx(EAST_M_S, rel=1e-3)
+
+
+def test_a_world_lagging_the_autopilot_renders_the_vehicle_where_it_was_at_its_own_time():
+    """SIM_STATE at 50 Hz for 60 s of a vehicle flying east, the world 15 s behind (as at x1 on two cores): its
+    state is the record's at its own time, not the oldest of the last few seconds (was: 11 s ahead of it, 44 m)."""
+    truth = []
+    for k in range(3000):
+        t = 7.5 + k * 0.02
+        lat, lon, alt = pymap3d.ned2geodetic(0.0, EAST_M_S * (t - 7.5), 0.0, *HOME)
+        truth.append((t, lat, lon, alt, *([0.0] * 9), 0.0, EAST_M_S, 0.0))
+    for lag_s in (0.0, 3.0, 15.0, 50.0):
+        t = truth[-1][0] - lag_s - 0.007
+        pos, vel, (lat, lon, _) = truth_at(truth, t)
+        n, e, _ = pymap3d.geodetic2ned(lat, lon, 0.0, *HOME[:2], 0.0)
+        assert abs(e - EAST_M_S * (t - 7.5)) < 0.01 and abs(n) < 0.01, (lag_s, e)
+        assert np.linalg.norm(vel) == pytest.approx(EAST_M_S)
+    assert truth_at(truth, truth[-1][0] + 0.01) is None and truth_at(truth[:1], 8.0) is None
 
 
 def test_every_gps_input_is_judged_against_the_truth_at_its_fixs_time(tmp_path):

@@ -20,6 +20,7 @@ at 10 m/s), where with the failsafe on it lands ~9 s into the outage: the safe e
 
 from __future__ import annotations
 
+import bisect
 import contextlib
 import csv
 import json
@@ -120,14 +121,7 @@ class SitlWorld(threading.Thread):
 
     def _truth_at(self, t_boot_s: float):
         """ECEF position and velocity, and (lat, lon, alt), at vehicle time t_boot_s; None until SITL gets there."""
-        recent = np.array(self.obs.truth[-200:])
-        if len(recent) < 2 or recent[-1, 0] < t_boot_s:
-            return None
-        recent = recent[np.r_[True, np.diff(recent[:, 0]) > 0]]
-        lat, lon, alt, vn, ve, vd = (np.interp(t_boot_s, recent[:, 0], recent[:, k]) for k in (1, 2, 3, 13, 14, 15))
-        pos = np.array(pymap3d.geodetic2ecef(lat, lon, alt))
-        vel = enu_rotation(math.radians(lat), math.radians(lon)).T @ np.array([ve, vn, -vd])
-        return pos, vel, (lat, lon, alt)
+        return truth_at(self.obs.truth, t_boot_s)
 
     def _wait_truth(self, tau_s: float):
         deadline = time.monotonic() + STALL_S
@@ -195,6 +189,25 @@ def _best_effort(pid: int = 0) -> None:
     (seen in static and takeover runs alike). On Linux a thread's nice value is its own."""
     with contextlib.suppress(OSError, AttributeError):
         os.setpriority(os.PRIO_PROCESS, pid or threading.get_native_id(), BEST_EFFORT_NICE)
+
+
+def truth_at(truth: list[tuple], t_boot_s: float):
+    """ECEF position and velocity, and (lat, lon, alt), at vehicle time t_boot_s from SIM_STATE records (Observer.truth,
+    appended in time order); None until they reach it. The records around it are found wherever they are: a world
+    lagging SITL by more than the last few seconds of records (at x1 on two cores, 13-16 s) had its vehicle's state
+    read from the oldest of them instead -- the signals rendered from a position seconds ahead of their own time,
+    moving faster than their Doppler said, and every tracking loop on them stressed (the canceller's lost lock 75
+    times in one takeover)."""
+    n = len(truth)
+    if n < 2 or truth[n - 1][0] < t_boot_s:
+        return None
+    k = bisect.bisect_right(truth, t_boot_s, 0, n, key=lambda record: record[0])
+    around = np.array(truth[max(0, k - 2):min(n, k + 2)])
+    around = around[np.r_[True, np.diff(around[:, 0]) > 0]]
+    lat, lon, alt, vn, ve, vd = (np.interp(t_boot_s, around[:, 0], around[:, j]) for j in (1, 2, 3, 13, 14, 15))
+    pos = np.array(pymap3d.geodetic2ecef(lat, lon, alt))
+    vel = enu_rotation(math.radians(lat), math.radians(lon)).T @ np.array([ve, vn, -vd])
+    return pos, vel, (lat, lon, alt)
 
 
 def _attack_words(a: dict) -> str:
