@@ -767,3 +767,32 @@ def test_the_defended_chain_does_not_search_again_what_the_full_search_found_abs
     # defended one at most twice before the guard's first full search reaches it, and none of them after
     assert defended.stats.cold_searched <= 2 * 32 < 5 * 24 <= plain.stats.cold_searched, (
         defended.stats.cold_searched, plain.stats.cold_searched)
+
+
+def test_an_attack_dealt_with_is_settled_after_a_takeover_and_beside_an_idle_flight_side():
+    """Settled (looks once a second, as screens): every alarmed PRN cancelled and verified, nothing waiting. A close
+    pair seen on a PRN before its alarm is its cancellation's business; a takeover waits only on PRNs it has not
+    alarmed; a flight side's link waits only once a maneuver is asked for. Each of these kept every look full for
+    good after a takeover's recovery on ArduCopter SITL."""
+    from types import SimpleNamespace
+
+    from semperfi.defense.guard import SpoofGuard
+    from semperfi.defense.maneuver_id import LinkedManeuver
+    link = SimpleNamespace(send=lambda kind, payload: None, poll=lambda: [])
+    guard = SpoofGuard(load_config(None, []), 2e6, maneuver=LinkedManeuver(link, 2e6))
+    guard.alarm_t_s, guard.takeover = 10.0, True
+    for prn in (5, 9):
+        guard.alarmed_prns.add(prn)
+        guard.detector.raise_alarm(prn, 10.0)
+        guard.verified.add(prn)
+        guard.present_prns.add(prn)
+    guard.detector.close[5] = object()   # its pair, before the alarm
+    assert guard._settled()
+    guard.present_prns.add(12)           # a takeover's PRN not alarmed: its twin may be merged under it
+    assert not guard._settled()
+    guard.present_prns.discard(12)
+    guard.detector.close[12] = object()  # a close pair on a PRN not alarmed
+    assert not guard._settled()
+    del guard.detector.close[12]
+    guard.maneuver.request(11.0, 5)      # a maneuver asked for: its peaks are followed at every look
+    assert not guard._settled()

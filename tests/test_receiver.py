@@ -219,3 +219,23 @@ def test_a_loss_of_lock_costs_no_subframe_the_next_channel_takes_the_time_on(tmp
     assert t[t > 24.0].size and t[t > 24.0][0] < 26.5, t[t > 16.0][:3]
     err = enu_errors([f for f in fixes if float(f["t_rx_s"]) > 13.0])
     assert np.max(np.hypot(err[:, 0], err[:, 1])) < 10.0
+
+
+def test_a_prn_the_defence_found_absent_is_not_searched_warm_either():
+    """A PRN lost moments ago is searched around its last Doppler at every acquisition; once a more sensitive search
+    (the defence's full look) found nothing of it, it waits for that search to see it again (cross-talk channels
+    lost during an attack, twelve searched every half second, were a fifth of the receiver's time)."""
+    from semperfi.receiver.chain import Receiver
+    rx = Receiver(load_config(None, []), 2e6)
+    rx._buf = np.zeros(rx.acq_samples, dtype=np.complex64)
+    searched = []
+    rx._search = lambda samples, prns, center_hz=0.0, span_hz=None: searched.extend(prns) or {}
+    rx.prns = [5, 7]
+    rx.warm = {5: 1200.0, 7: -800.0}
+    rx.absent_prns = frozenset({5})
+    rx._acquire()
+    assert searched == [7]
+    rx.absent_prns = frozenset()
+    searched.clear()
+    rx._acquire()
+    assert sorted(searched) == [5, 7]

@@ -266,9 +266,16 @@ class SpoofGuard:
         """An attack known and dealt with: every PRN alarmed is cancelled and verified clean (or given up), and
         nothing waits on the next looks (a verification, a pair to confirm, a close second signal, a merged pair to
         part, a push's beat, a takeover's lone peaks, a maneuver)."""
+        # a close second signal waits on the looks only on a PRN not alarmed (an alarmed one's is being cancelled);
+        # a takeover's lone peaks are the PRNs it has not alarmed yet (their twins may still be merged under them);
+        # a maneuver that is asked for or under way has its peaks followed at every look. Was: any close pair ever
+        # seen, any maneuver object (a live flight side's link) and any takeover at all kept every look full for
+        # good after a takeover's recovery on ArduCopter SITL
         return (self.alarm_t_s is not None and not self.pending_verify and not self.awaiting
-                and not self.detector.pending() and not self.detector.close and not self.merged
-                and self.push_beat_hz is None and not self.takeover and self.maneuver is None
+                and not self.detector.pending() and not self.detector.close.keys() - self.alarmed_prns
+                and not self.merged and self.push_beat_hz is None
+                and not (self.takeover and self.present_prns - self.alarmed_prns - self.gave_up.keys())
+                and not (self.maneuver is not None and self.maneuver.expected())
                 and all(p in self.verified or p in self.gave_up for p in self.alarmed_prns))
 
     def flush(self) -> np.ndarray:

@@ -144,6 +144,10 @@ class ManeuverIdentifier:
     def due_to_start(self, t_s: float) -> bool:
         return self.window_s is not None and not self.started and t_s >= self.window_s[0]
 
+    def expected(self) -> bool:
+        """Whether a maneuver is on its way or under way (the looks follow its peaks): a recording's, until it ends."""
+        return self.window_s is not None and not self.ended
+
     def due_to_end(self, t_s: float) -> bool:
         return self.started and not self.ended and t_s >= self.window_s[1]
 
@@ -290,6 +294,10 @@ class LinkedManeuver(ManeuverIdentifier):
     def pending(self, t_s: float) -> bool:
         self._poll(t_s)
         return self.failed is None and not self.ended
+
+    def expected(self) -> bool:
+        """Asked for and not over (a flight side that was never asked flies nothing)."""
+        return self.wanted is not None and not self.ended
 
     def due_to_start(self, t_s: float) -> bool:
         self._poll(t_s)

@@ -171,7 +171,10 @@ class Receiver:
         self.stats.cold_searched += len(cold)
         cafs = self._search(samples, cold) if cold else {}
         for prn, doppler in list(self.warm.items()):
-            if prn not in self.channels:
+            # a PRN a more sensitive search just found nothing of (the defence's full look) is not searched again
+            # around where it was lost either: cross-talk channels lost during an attack, twelve of them searched
+            # every half second, were a fifth of the receiver's time after a takeover
+            if prn not in self.channels and prn not in self.absent_prns:
                 cafs.update(self._search(samples, [prn], center_hz=doppler, span_hz=1000.0))
         found = [c for c in cafs.values() if c.best is not None]
         found.sort(key=lambda c: -c.best.metric)
