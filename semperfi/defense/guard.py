@@ -695,9 +695,8 @@ class SpoofGuard:
         behind the raw stream, so the look's sample is not yet in its history. Nothing compared, nothing judged."""
         if prn not in self.guessed:
             return
-        tracks = [tr for st in self.canceller.stages if (tr := st.tracks.get(prn)) is not None and tr.channel.ms > 1]
-        # at its latest epoch, the track's code phase is 0 by definition
-        followed = [follower.peak_at(tr.channel.latest_epoch_sample) for tr in tracks]
+        # at its latest epoch, a track's code phase is 0 by definition
+        followed = [follower.peak_at(tr.channel.latest_epoch_sample) for tr in self._tracks(prn) if tr.channel.ms > 1]
         at = [chips_apart(f.code_phase_chips, 0.0) < 0.5 for f in followed if f is not None]
         if at:
             self.identified(prn, any(at) == adversarial, t_s, "maneuver: the peak followed through it")
@@ -942,8 +941,8 @@ class SpoofGuard:
     def close_twin(self, prn: int) -> tuple[float, float] | None:
         """(how much stronger than its legitimate twin the spoofer is in dB, the twin's offset in chips) when the two
         lie within JOINT_WITHIN_CHIPS, from the strongest of the PRN's tracks; None when none is so close."""
-        twins = [(tr.twin_advantage_db, tr.legit_offset_chips) for st in self.canceller.stages
-                 if (tr := st.tracks.get(prn)) is not None and tr.twin_advantage_db is not None]
+        twins = [(tr.twin_advantage_db, tr.legit_offset_chips) for tr in self._tracks(prn)
+                 if tr.twin_advantage_db is not None]
         return max(twins) if twins else None
 
     def _forget_lost(self, t_s: float) -> None:
@@ -983,11 +982,14 @@ class SpoofGuard:
     def spoofers_at(self, prn: int, sample: float):
         """(track, the cancelled spoofer's code phase) at an absolute sample, for each of a PRN's tracks that
         holds it."""
-        for st in self.canceller.stages:
-            tr = st.tracks.get(prn)
-            spoofer_chips = tr.channel.code_phase_at(sample) if tr is not None else None
+        for tr in self._tracks(prn):
+            spoofer_chips = tr.channel.code_phase_at(sample)
             if spoofer_chips is not None:
                 yield tr, spoofer_chips
+
+    def _tracks(self, prn: int) -> list:
+        """A PRN's cancellation tracks, one for each SIC stage that holds it."""
+        return [tr for st in self.canceller.stages if (tr := st.tracks.get(prn)) is not None]
 
     def account(self) -> str | None:
         """One line for the user on what the defence saw, None when it saw no attack."""
