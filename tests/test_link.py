@@ -346,10 +346,11 @@ def test_the_imu_track_is_moved_from_the_vehicles_clock_to_the_receivers(vehicle
 
 
 @pytest.mark.parametrize("bound, tolerance_m", [(4.3, 4.8), (1.0, 2.5), (None, 2.5), (float("nan"), 2.5),
-                                                 (-3.0, 2.5), (1e9, 2.5)])
+                                                 (-3.0, 2.5)])
 def test_the_identifiers_tolerance_grows_with_the_flight_sides_drift_bound(bound, tolerance_m, monkeypatch):
     """Issue 24, item 2: the INS track's error bound grows with time (deadreckoning.ins_error_bound_m: 4.3 m after
-    20 s) and is what the identifier's threshold uses, never below its own 2 m; a missing or hostile one is ignored."""
+    20 s) and is what the identifier's threshold uses, never below its own 2 m; a missing or malformed one is ignored
+    (one too large to decide anything: the next test)."""
     import semperfi.defense.maneuver_id as mid
 
     flight = _Flight({"maneuver_id": "m"})
@@ -377,3 +378,46 @@ def test_the_identifiers_tolerance_grows_with_the_flight_sides_drift_bound(bound
     maneuver.followers = {(p, 0): Follower(p) for p in (3, 5, 7)}
     maneuver.identify(object(), lambda prn: None)
     assert seen["tol"] == pytest.approx(tolerance_m)
+
+
+@pytest.mark.parametrize("bound", [84.0, 1e9])
+def test_a_track_too_uncertain_to_decide_fails_the_maneuver(bound):
+    """An INS started long before its maneuver (a second one, after the first was aborted) states a bound of tens of
+    metres or more. Was: a bound over 50 m ignored, and the identifier's own 2 m applied to a track that may be 84 m
+    off, condemning legitimate peaks on its drift. Now the maneuver fails, and nothing is decided on it."""
+    from semperfi.defense.maneuver_id import LinkedManeuver
+    flight = _Flight({"maneuver_id": "m"})
+    maneuver = LinkedManeuver(flight, 2e6)
+    maneuver.request(12.0, 7)
+    t = np.arange(13.0, 28.0, 0.02)
+    flight.inbox.append(("maneuver_done", {"maneuver_id": "m", "t_s": t.tolist(), "drift_bound_m": bound,
+                                           **{k: np.zeros(t.size).tolist() for k in ("north_m", "east_m", "down_m")}}))
+    assert maneuver.due_to_end(12.5) and maneuver.track is None
+    assert "too large to decide" in dict(maneuver.news())["maneuver_failed"]["why"]
+
+
+def test_a_failed_maneuver_is_asked_for_again_up_to_max_attempts():
+    """A retry is due RETRY_S after a failure, not before; it sends a fresh alarm; no alarm waits for it (pending
+    False: the guesses it judges are made); after MAX_ATTEMPTS, none; none on a lost link."""
+    from semperfi.defense.maneuver_id import LinkedManeuver
+    side = _ScriptedFlightSide()
+    maneuver = LinkedManeuver(side, 2e6)
+    t = 10.0
+    maneuver.request(t, 7)
+    for attempt in range(1, LinkedManeuver.MAX_ATTEMPTS + 1):
+        assert side.sent.count("alarm") == attempt and maneuver.pending(t) == (attempt == 1)
+        side.queued = [("maneuver_request", {"maneuver_id": str(attempt)}), ("maneuver_failed", {"why": "geofence"})]
+        assert maneuver.due_to_end(t + 0.5)
+        maneuver.identify(None, None)   # the guard releases the waiting alarms
+        assert not maneuver.retry(t + 0.5 + LinkedManeuver.RETRY_S - 0.1)
+        t += 0.5 + LinkedManeuver.RETRY_S
+        if attempt < LinkedManeuver.MAX_ATTEMPTS:
+            assert maneuver.retry(t) and maneuver.failed is None and not maneuver.ended
+            maneuver.request(t, 7)
+    assert not maneuver.retry(t + 100.0), "MAX_ATTEMPTS made"
+    lost = LinkedManeuver(_ScriptedFlightSide(), 2e6)
+    lost.request(10.0, 7)
+    lost.channel.closed = "truncated: peer closed"
+    assert lost.due_to_end(10.5)
+    lost.identify(None, None)
+    assert not lost.retry(20.0)

@@ -25,9 +25,10 @@ from semperfi.sim.scenario import load_scenario
 LAT, LON, H = 42.3398, -71.0892, 10.0
 
 
-def _fly_through_attack(tmp_path, brdc_path, hover_before_s: float, *attacker_sets: str):
+def _fly_through_attack(tmp_path, brdc_path, hover_before_s: float, *attacker_sets: str, flight_side=None):
     """Hover, the maneuver, hover; an attacker on from the first sample; the recording run defended with the INS
-    track the vehicle logged. Returns (events, horizontal errors against the truth by fix state)."""
+    track the vehicle logged, or with flight_side(the INS track, the maneuver's span) as its live flight link.
+    Returns (events, horizontal errors against the truth by fix state)."""
     t, ned = hover_maneuver_hover(hover_before_s, 6.0)
     write_motion_csv(tmp_path / "motion.csv", t, ned, LAT, LON, H)
     write_track_csv(tmp_path / "ins.csv", t, ins_track(t, ned, seed=3))
@@ -36,7 +37,10 @@ def _fly_through_attack(tmp_path, brdc_path, hover_before_s: float, *attacker_se
                                "attacker.enabled=true", *attacker_sets,
                                f'receiver.trajectory="{tmp_path / "motion.csv"}"'])
     simulate_to_file(cfg, tmp_path / "a.bin")
-    receiver = functools.partial(DefendedReceiver, imu_track=read_imu_csv(tmp_path / "ins.csv"))
+    track = read_imu_csv(tmp_path / "ins.csv")
+    moving = t[np.flatnonzero(np.any(np.diff(ned, axis=0) != 0.0, axis=1))]
+    receiver = functools.partial(DefendedReceiver, imu_track=track) if flight_side is None else \
+        functools.partial(DefendedReceiver, flight_link=flight_side(track, (float(moving[0]), float(moving[-1]))))
     run_file(tmp_path / "a.bin", None, None, None, load_config(None, ['defense.mode="full"']), tmp_path / "out",
              str(brdc_path), receiver_factory=receiver)
     events = [json.loads(line) for line in open(tmp_path / "out" / "events.jsonl")]
@@ -92,6 +96,57 @@ def test_twins_merged_under_their_spoofers_peaks_are_decided_on_the_one_peak_fol
     assert max(errors.get("nominal", [0.0])) < 10.0, errors["nominal"]
     first = next(e for e in events if e["event"] == "spoofing_alarm")
     assert first["t_rx_s"] < 18.0, first
+
+
+class _AbortsFirst:
+    """A flight side that aborts its first maneuver (ArduCopter SITL: at the geofence) and flies the next one, whose
+    INS track is the recording's maneuver."""
+    closed, rejected = None, 0
+
+    def __init__(self, track, span_s):
+        keep = (track.t_s >= span_s[0] - 1.0) & (track.t_s <= span_s[1] + 1.0)
+        self.track = {"maneuver_id": "second", "drift_bound_m": 2.0,
+                      **{k: getattr(track, k)[keep].tolist() for k in ("t_s", "north_m", "east_m", "down_m")}}
+        self.alarms, self.queued = [], []
+
+    def send(self, kind, payload):
+        if kind != "alarm":
+            return
+        self.alarms.append(payload["t_s"])
+        self.queued += [("maneuver_failed", {"why": "vehicle 61 m from the start, outside the 60 m geofence"})] \
+            if len(self.alarms) == 1 else \
+            [("maneuver_request", {"maneuver_id": "second", "t_s": payload["t_s"]}), ("maneuver_done", self.track)]
+
+    def poll(self):
+        out, self.queued = self.queued, []
+        return out
+
+
+def test_a_maneuver_the_flight_side_aborted_is_asked_for_again_and_judges_the_guesses(tmp_path, brdc_path):
+    """The closed loop on ArduCopter SITL at x1: the flight side aborted the maneuver at its geofence, the receiver
+    cancelled every spoofer on a guess (the stronger peak, right here) and nobody asked for a second maneuver: its
+    fixes stayed `recovering`, the autopilot never got a position it could use, and landed. Now the receiver asks
+    again while guesses wait; the second maneuver judges them, and the true position is called recovered."""
+    sides = []
+
+    def flight_side(track, span_s):
+        sides.append(_AbortsFirst(track, span_s))
+        return sides[0]
+    events, errors = _fly_through_attack(tmp_path, brdc_path, 18.0, "attacker.power_advantage_db=6",
+                                         flight_side=flight_side)
+    side = sides[0]
+    kinds = [e["event"] for e in events]
+    retry = next(e for e in events if e["event"] == "maneuver_retry")
+    assert len(side.alarms) == 2 and kinds.count("maneuver_failed") == 1, side.alarms
+    assert side.alarms[1] - side.alarms[0] >= LinkedManeuver.RETRY_S and retry["attempt"] == 2, (side.alarms, retry)
+    guessed = {e["prn"] for e in events if e["event"] == "cancellation_start" and e["guessed"]}
+    assert guessed and set(retry["guessed"]) <= guessed, (retry, guessed)
+    judged = [v for e in events if e["event"] == "identification" for v in e["verdicts"]
+              if v.get("reason") == "maneuver: the peak followed through it"]
+    assert {v["prn"] for v in judged if v["adversarial"]} >= set(retry["guessed"]) - {None}, judged
+    recovered = errors.get("recovered", [])
+    assert len(recovered) >= 30 and np.mean(recovered) < 3.0 and max(recovered) < 10.0, errors.keys()
+    assert max(errors.get("nominal", [0.0])) < 10.0, errors["nominal"]
 
 
 def test_run_refuses_a_malformed_imu_track_in_one_line(tmp_path):

@@ -376,3 +376,65 @@ def test_watched_before_the_gps_went_the_ins_is_calibrated_on_the_gps_aided_flig
         assert np.all(np.abs(bias.gyro_bias_rps - true_bias(end)) < 3e-4), bias.gyro_bias_rps - true_bias(end)
         assert np.all(np.abs(bias.gyro_drift_rps2 - drift) < 3e-5), bias.gyro_drift_rps2
     assert since_end[0][0] >= end and since_end[-1][0] == pytest.approx(44.98)
+
+
+def test_a_maneuver_that_could_not_be_flown_is_flown_when_the_receiver_asks_again(slow_vehicle, monkeypatch):
+    """ArduCopter SITL at x1: the flight side aborted a takeover's maneuver at its geofence, told the receiver, and
+    stopped serving it: held level without a position for 120 s, then landed, while the receiver's guesses waited
+    for a verdict. Now the vehicle is held level in GUIDED_NOGPS until the receiver asks again, and the second
+    maneuver is flown; the mode is given back once the autopilot has a position."""
+    from semperfi.flight import companion, mavlink_pilot
+    from semperfi.flight.link import LinkPeer
+    v, port = slow_vehicle
+    real_legs, legs = mavlink_pilot.Pilot._fly_legs, []
+
+    def aborted_once(self, maneuver):
+        legs.append(maneuver)
+        if len(legs) == 1:
+            raise mavlink_pilot.PilotError("vehicle 61 m from the start, outside the 60 m geofence")
+        return real_legs(self, maneuver)
+
+    monkeypatch.setattr(mavlink_pilot.Pilot, "_fly_legs", aborted_once)
+    key = b"0123456789abcdef0123456789abcdef"
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        link_port = probe.getsockname()[1]
+    events = []
+    server = threading.Thread(target=companion.serve, args=(link_port, key, f"udpout:127.0.0.1:{port}", events.append),
+                              kwargs={"rng": random.Random(10)}, daemon=True)
+    server.start()
+    while not events:
+        time.sleep(0.02)
+    receiver = LinkPeer.connect("127.0.0.1", link_port, key)
+    watched_s = v.t_s   # a GPS-aided flight watched for its calibration, then the position withheld (an attack)
+    while v.t_s < watched_s + mavlink_pilot.CAL_SPAN_S + 2 * mavlink_pilot.CAL_WINDOW_S:
+        time.sleep(0.05)
+    v.gps_fix_type = 1
+    alarm = {"reason": "auxiliary peak on PRN 7", "t_s": 1.0, "required_spread_m": 4.4,
+             "lines_of_sight": [{"prn": 7, "az_deg": 40.0, "el_deg": 50.0}, {"prn": 9, "az_deg": 200.0, "el_deg": 30.0}]}
+
+    def answers(*kinds, timeout_s=120.0):
+        got, deadline = [], time.monotonic() + timeout_s
+        while len(got) < len(kinds) and time.monotonic() < deadline:
+            msg = receiver.wait(0.5)
+            if msg is not None:
+                got.append(msg[0])
+        return got
+    try:
+        receiver.send("alarm", alarm)
+        assert answers("maneuver_request", "maneuver_failed") == ["maneuver_request", "maneuver_failed"], events
+        time.sleep(1.0)   # the receiver's RETRY_S: the vehicle is held meanwhile
+        assert v.mode == MODES["GUIDED_NOGPS"] and v.armed, v.mode
+        receiver.send("verdict", {"maneuver_id": "", "failed": "the flight side could not fly the maneuver"})
+        receiver.send("alarm", alarm)
+        assert answers("maneuver_request", "maneuver_done") == ["maneuver_request", "maneuver_done"], (v.mode, v.t_s, \
+            [e for e in events if "track" not in e])
+        v.gps_fix_type = 3
+        receiver.send("verdict", {"maneuver_id": "", "failed": None, "adversarial": True, "peaks": []})
+        server.join(60.0)
+    finally:
+        receiver.close()
+    kinds = [e["event"] for e in events]
+    assert not server.is_alive() and len(legs) == 2, kinds
+    assert kinds.count("maneuver_failed") == 1 and "maneuver_done" in kinds and "regain_failed" not in kinds, kinds
+    assert "mode_restored" in kinds and v.mode == MODES["LOITER"], (kinds, v.mode)

@@ -221,6 +221,7 @@ class SpoofGuard:
                 self._identify(self._seen / self.fs_hz)
             for kind, fields in self.maneuver.news():
                 self._emit(kind, self._seen / self.fs_hz, **fields)
+            self._retry_maneuver(self._seen / self.fs_hz)
         if self._pending is not None and self._seen >= self._pending[0].seen + self._apply_after:
             self._apply_pending()
         self.detector.suspected = self._seen < self._suspect_until
@@ -599,6 +600,13 @@ class SpoofGuard:
                    f"receiver had the other, it was the {'stronger' if stronger else 'weaker'}")
             choice = by_power(alarm, stronger, why) or choice
         self._start_cancelling(alarm.prn, t_s, choice)
+
+    def _retry_maneuver(self, t_s: float) -> None:
+        """Cancellations made on a guess after a failed maneuver: a fresh one is asked for, to judge them."""
+        live = sorted(p for p in self.guessed if p in self.cancel_started)
+        if live and self.maneuver.retry(t_s):
+            self.maneuver.request(t_s, live[0])
+            self._emit("maneuver_retry", t_s, attempt=self.maneuver.attempts, guessed=live)
 
     def _follow_through_maneuver(self, cafs: dict) -> None:
         """The maneuver begins: follow both peaks of every PRN awaiting a verdict, and every other PRN's peak."""

@@ -29,7 +29,7 @@ FLIGHT_TIME_S = 0.075         # signal flight time, for the satellites' transmit
 # carrier ranges are good to millimetres: what remains is the INS drift over the maneuver -- a code-range tolerance
 # (4.5 m) would let a spoofed peak with a small signature pass
 CARRIER_RANGE_TOL_M = INS_DRIFT_M + 0.5   # the tolerance less the drift: the carrier ranges' own error
-MAX_DRIFT_BOUND_M = 50.0      # beyond this a drift bound is hostile input (ignored); without GPS 20 s state 27 m
+MAX_DRIFT_BOUND_M = 50.0      # beyond this a track decides nothing (the maneuver fails); without GPS 20 s state 27 m
 
 
 class PeakFollower:
@@ -133,6 +133,10 @@ class ManeuverIdentifier:
     def request(self, t_s: float, prn: int) -> None:
         """An alarm waits for the maneuver (a recorded track's maneuver comes when it comes)."""
 
+    def retry(self, t_s: float) -> bool:
+        """Whether a fresh maneuver was asked for after a failed one (a recording has the one it has)."""
+        return False
+
     def news(self) -> list[tuple[str, dict]]:
         """What went wrong since the last call, as events (a recorded track has nothing to tell)."""
         return []
@@ -206,10 +210,18 @@ class LinkedManeuver(ManeuverIdentifier):
     once the samples have reached the track's end, the peaks are
     identified and a "verdict" goes back. No answer within ACCEPT_S, or no track within TRACK_S of signal time: the
     maneuver has failed, the waiting alarms are examined afresh, and the policy's guess applies from then on.
+
+    A failed maneuver is asked for again (`retry`, up to MAX_ATTEMPTS in all) while cancellations made on a guess
+    wait for a verdict: a flight side that aborted one at its geofence, or did not answer, left a recovered takeover
+    unjudged and the autopilot without a trusted position to the end (ArduCopter SITL, x1). A retry is asked RETRY_S
+    after the failure (the flight side has levelled the vehicle); no alarm waits for it: the guesses stand meanwhile,
+    and it judges them.
     """
 
     ACCEPT_S = 5.0
     TRACK_S = 60.0
+    MAX_ATTEMPTS = 3
+    RETRY_S = 2.0
 
     def __init__(self, channel, fs_hz: float, if_hz: float = 0.0, ready=lambda: True, sky=lambda: []):
         super().__init__(None, fs_hz, if_hz)
@@ -220,7 +232,24 @@ class LinkedManeuver(ManeuverIdentifier):
         self.maneuver_id: str | None = None
         self.vehicle_minus_sample_s = 0.0   # vehicle clock - sample clock (0: a shared clock, as in a lockstep world)
         self.failed: str | None = None
+        self.failed_s: float | None = None
+        self.attempts = 1
         self._told: dict[str, object] = {"failed": None, "closed": None, "rejected": 0}
+
+    def retry(self, t_s: float) -> bool:
+        """After a failed attempt, RETRY_S on: a fresh one, its alarm sent at the next request. False when none is
+        due (not failed, failed too recently, the link lost, or MAX_ATTEMPTS made)."""
+        if self.failed_s is None or not self.ended or t_s - self.failed_s < self.RETRY_S \
+                or self.attempts >= self.MAX_ATTEMPTS or getattr(self.channel, "closed", None):
+            return False
+        self.attempts += 1
+        self.track = self.window_s = self.wanted = self.requested_s = self.accepted_s = self.maneuver_id = None
+        self.failed = self.failed_s = None
+        self.vehicle_minus_sample_s, self.drift_bound_m = 0.0, INS_DRIFT_M
+        self.followers, self._buf, self._base = {}, np.empty(0, dtype=np.complex64), 0
+        self.started = self.ended = False
+        self._told["failed"] = None
+        return True
 
     def request(self, t_s: float, prn: int) -> None:
         if self.wanted is None:
@@ -245,6 +274,14 @@ class LinkedManeuver(ManeuverIdentifier):
                 self.failed = ("the flight side could not fly the maneuver"
                                + (f": {why}" if isinstance(why, str) else ""))[:MAX_REASON_CHARS]
             elif kind == "maneuver_done" and self.accepted_s is not None and self.track is None:
+                bound = payload.get("drift_bound_m")   # the flight side's INS error bound over its track
+                if not isinstance(bound, (int, float)) or isinstance(bound, bool) or not 0.0 < bound < math.inf:
+                    bound = None   # none stated (an older flight side), or not a number: the identifier's own
+                elif bound > MAX_DRIFT_BOUND_M:
+                    # an INS that uncertain decides no peak; taking the identifier's own 2 m instead would condemn
+                    # legitimate peaks on its drift
+                    self.failed = f"the IMU track's stated error bound {bound:.0f} m is too large to decide peaks"
+                    continue
                 try:
                     track = ImuTrack(*(np.asarray(payload[k], dtype=float)
                                        for k in ("t_s", "north_m", "east_m", "down_m")))
@@ -253,10 +290,7 @@ class LinkedManeuver(ManeuverIdentifier):
                     # side drew it to move enough along every line of sight over all of it); find_maneuver, for long
                     # recordings, would cut one at a reversal's slow turn
                     self.window_s = (float(self.track.t_s[0]), float(self.track.t_s[-1]))
-                    bound = payload.get("drift_bound_m")   # the flight side's INS error bound over its track
-                    if isinstance(bound, (int, float)) and not isinstance(bound, bool) and \
-                            0.0 < bound <= MAX_DRIFT_BOUND_M:
-                        self.drift_bound_m = float(bound)
+                    self.drift_bound_m = INS_DRIFT_M if bound is None else float(bound)
                 except (KeyError, TypeError, ValueError) as exc:
                     self.failed = f"unusable IMU track ({exc})"[:MAX_REASON_CHARS]
         closed = getattr(self.channel, "closed", None)
@@ -270,6 +304,8 @@ class LinkedManeuver(ManeuverIdentifier):
                 self.failed = "the flight side did not answer the alarm"
             elif self.accepted_s is not None and self.track is None and t_s - self.accepted_s > self.TRACK_S:
                 self.failed = "no IMU track came back from the maneuver"
+        if self.failed is not None and self.failed_s is None:
+            self.failed_s = t_s
 
     def news(self) -> list[tuple[str, dict]]:
         """The link lost (the flight side closed, broke its framing, or sent an oversized frame), frames rejected
@@ -292,8 +328,9 @@ class LinkedManeuver(ManeuverIdentifier):
     REJECTS_TOLD = 1000
 
     def pending(self, t_s: float) -> bool:
+        """A first attempt's verdict is waited for; a retry's is not (the guesses it judges were made already)."""
         self._poll(t_s)
-        return self.failed is None and not self.ended
+        return self.failed is None and not self.ended and self.attempts == 1
 
     def expected(self) -> bool:
         """Asked for and not over (a flight side that was never asked flies nothing)."""

@@ -5,8 +5,11 @@ On "alarm": draw a pseudorandom maneuver (the OS's cryptographic source) that mo
 alarm carries far enough for the receiver to decide its peaks, answer "maneuver_request", fly it over
 MAVLink in GUIDED (GUIDED_NOGPS when the autopilot has no GPS fix: mavlink_pilot), answer "maneuver_done" with the
 IMU-only track (t_s on the vehicle's clock), give the vehicle its mode back once the autopilot has a position again,
-and wait for the "verdict". Alarms that arrive while a maneuver is under way are answered by that maneuver. Every step
-is reported to `report` as a dict (the demo prints and plots them).
+and wait for the "verdict". Alarms that arrive while a maneuver is under way are answered by that maneuver. A maneuver
+that cannot be flown (aborted at the geofence, a vehicle that does not follow) is answered "maneuver_failed"; the
+vehicle is held level meanwhile, and the receiver's next alarm (it asks again while its guesses wait for a verdict)
+gets a fresh maneuver, up to MAX_FAILED failures. Every step is reported to `report` as a dict (the demo prints and
+plots them).
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ from .maneuver import ManeuverLimits, draw, spread_m, unit_ned
 from .mavlink_pilot import Pilot, PilotError
 
 VERDICT_WAIT_S = 120.0
+MAX_FAILED = 3         # maneuvers that could not be flown, before the vehicle is left to regain its position or land
 HELLO_WAIT_S = 5.0     # a connection must say an authenticated hello this soon, or it is dropped
 
 
@@ -40,7 +44,7 @@ def serve(port: int, key: bytes, vehicle_url: str, report, host: str = "127.0.0.
     finally:
         srv.close()
     report({"event": "receiver_connected", "address": address})
-    flown = 0
+    flown = failed = 0
     # one link to the vehicle for the whole session, watched from now on: a maneuver flown after the autopilot lost
     # its GPS (SemperFi withholds it while spoofing is suspected) is calibrated on the GPS-aided seconds before
     pilot = None
@@ -53,6 +57,8 @@ def serve(port: int, key: bytes, vehicle_url: str, report, host: str = "127.0.0.
         while flown < max_maneuvers and peer.closed is None:
             msg = peer.wait(1.0)
             if msg is None or msg[0] != "alarm":
+                if pilot is not None and pilot.return_mode is not None and not _regain(pilot, report, peer.pending):
+                    break   # landed
                 continue
             report({"event": "alarm", "payload": msg[1]})
             try:
@@ -78,9 +84,12 @@ def serve(port: int, key: bytes, vehicle_url: str, report, host: str = "127.0.0.
             except (PilotError, ValueError, RuntimeError) as exc:
                 report({"event": "maneuver_failed", "error": str(exc)})
                 peer.send("maneuver_failed", {"why": str(exc)[:MAX_WHY_CHARS]})   # it waits for no track now
-                if pilot is not None:
-                    _regain(pilot, report)
-                break
+                failed += 1
+                if failed >= MAX_FAILED:
+                    if pilot is not None:
+                        _regain(pilot, report)
+                    break
+                continue   # held level (the loop's regain) until the receiver asks again or a position comes back
             ins, t0 = result.ins, result.start_time_boot_s
             track = {"maneuver_id": maneuver_id, "t_s": [round(t0 + t, 3) for t in ins.t_s.tolist()],
                      "north_m": [round(x, 3) for x in ins.pos_ned_m[:, 0].tolist()],
@@ -100,16 +109,19 @@ def serve(port: int, key: bytes, vehicle_url: str, report, host: str = "127.0.0.
         peer.close()
 
 
-def _regain(pilot: Pilot, report) -> None:
+def _regain(pilot: Pilot, report, interrupt=lambda: False) -> bool:
     """A vehicle left in GUIDED_NOGPS (the maneuver flown without a position) is held level until the autopilot has
-    its position back and takes its mode again, or lands (mavlink_pilot.Pilot.regain)."""
+    its position back and takes its mode again, or lands (mavlink_pilot.Pilot.regain), or interrupt() (a message
+    from the receiver) stops the hold for now. False when it landed."""
     if pilot.return_mode is None:
-        return
+        return True
     try:
-        pilot.regain(VERDICT_WAIT_S)
-        report({"event": "mode_restored", "mode": pilot.tm.custom_mode})
+        if pilot.regain(VERDICT_WAIT_S, interrupt):
+            report({"event": "mode_restored", "mode": pilot.tm.custom_mode})
     except PilotError as exc:
         report({"event": "regain_failed", "error": str(exc)})
+        return False
+    return True
 
 
 def _authenticated(srv: socket.socket, key: bytes, timeout_s: float, report) -> tuple[LinkPeer, str]:

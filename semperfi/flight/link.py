@@ -261,6 +261,10 @@ class LinkPeer:
             out.append(self._queue.get_nowait())
         return out
 
+    def pending(self) -> bool:
+        """Whether a message waits to be read."""
+        return not self._queue.empty()
+
     def wait(self, timeout_s: float) -> tuple[str, dict] | None:
         """The next message, or None after timeout_s (or when the link is closed)."""
         import queue

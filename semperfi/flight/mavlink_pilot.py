@@ -35,7 +35,8 @@ from pymavlink.dialects.v20 import common as mav
 
 from ..address import parse_address
 from ..errors import BadInput
-from .deadreckoning import HoverBias, InsTrack, Strapdown, bias_between, hover_bias, ins_error_bound_m, integrate
+from .deadreckoning import (HoverBias, InsTrack, Strapdown, bias_between, hover_bias, integrate,
+                            track_error_bound_m)
 from .maneuver import Maneuver, ManeuverLimits
 from .telemetry import (G_MPS2, IMU_FALLBACK, MSG_ID, OPTIONAL_STREAMS_HZ, STREAMS_HZ, Telemetry, TelemetryError,
                         c_nb, quaternion)
@@ -123,10 +124,10 @@ class FlownManeuver:
 
     @property
     def error_bound_m(self) -> float:
-        """How far the track may be from the truth at its end (deadreckoning.ins_error_bound_m)."""
-        length_s = float(self.ins.t_s[-1] - self.ins.t_s[0])
-        return float(ins_error_bound_m(self.ins_age_s + length_s, self.bound_without_gps,
-                                       drift_carried=self.ins_age_s > 0))
+        """How far the track may be from the truth at its end, both from the maneuver's start
+        (deadreckoning.track_error_bound_m)."""
+        return track_error_bound_m(float(self.ins.t_s[-1] - self.ins.t_s[0]), self.ins_age_s, self.bound_without_gps,
+                                   drift_carried=self.ins_age_s > 0)
 
 
 def check_vehicle_url(url: str) -> str:
@@ -166,6 +167,7 @@ class Pilot:
         self._watcher: threading.Thread | None = None
         self.flying_mode = GUIDED   # GUIDED_NOGPS when the autopilot has no GPS fix (fly)
         self.return_mode: int | None = None   # the mode to give back once the autopilot has a position (regain)
+        self._held_since_s: float | None = None   # vehicle time the hold after the last maneuver began (regain)
         self._ins: Strapdown | None = None    # steering in GUIDED_NOGPS, from the maneuver start
         self._steer_integral = np.zeros(2)    # the velocity loop's integral, and when it was last updated
         self._steered_s: float | None = None
@@ -382,7 +384,8 @@ class Pilot:
         lowest = height - float(np.max(maneuver.down_m))
         if lowest < self.limits.min_altitude_m - HEIGHT_MARGIN_M:
             raise PilotError(f"the maneuver would take the vehicle down to {lowest:.1f} m above home")
-        previous = self.tm.custom_mode
+        previous = self.return_mode if self.return_mode is not None else self.tm.custom_mode
+        self.return_mode = self._held_since_s = None   # a hold after an aborted maneuver ends in this one
         self.flying_mode = GUIDED if self._positioned_soon() else GUIDED_NOGPS
         self.set_mode(self.flying_mode)
         try:
@@ -425,24 +428,29 @@ class Pilot:
                 return f"; held level in GUIDED_NOGPS until the autopilot has a position for mode {previous}"
         return f"; back in mode {previous}"
 
-    def regain(self, timeout_s: float) -> None:
+    def regain(self, timeout_s: float, interrupt=lambda: False) -> bool:
         """After a maneuver flown without a position: hold the vehicle level in GUIDED_NOGPS until the autopilot has
-        a GPS fix and takes back the mode it was in (asked each REGAIN_TRY_S); after timeout_s, LAND (the safe end
-        without a position, as ArduPilot's own failsafe would choose) and PilotError."""
+        a GPS fix and takes back the mode it was in (asked each REGAIN_TRY_S); timeout_s after the maneuver (counted
+        across calls), LAND (the safe end without a position, as ArduPilot's own failsafe would choose) and
+        PilotError. False when interrupt() said to stop holding (the receiver asks for another maneuver), the hold
+        not over."""
         if self.return_mode is None:
-            return
+            return True
         self._imu, self._att, self._pos = [], [], []
         self._recording = True
         try:
-            since = self._imu_time_now()
+            now = self._imu_time_now()
+            since = self._held_since_s = now if self._held_since_s is None else self._held_since_s
             while True:
                 asked = self._imu[-1][0]
                 if self.tm.positioned and self._regained():
-                    return
+                    return True
                 if asked - since > timeout_s:
                     self.return_mode = None
                     self.set_mode(LAND)
                     raise PilotError(f"the autopilot had no position {timeout_s:g} s after the maneuver: landing")
+                if interrupt():
+                    return False
                 self._stream(lambda t: np.zeros(3), self.tm.heading_rad, until=lambda t: t - asked >= REGAIN_TRY_S,
                              guard=lambda t: self._fit())
         finally:
@@ -453,13 +461,15 @@ class Pilot:
             self.set_mode(self.return_mode)
         except PilotError:
             return False   # its EKF has not taken the fix yet
-        self.return_mode = None
+        self.return_mode = self._held_since_s = None
         return True
 
     def _fly_legs(self, maneuver: Maneuver) -> FlownManeuver:
         yaw = self.tm.heading_rad
         self._imu, self._att, self._pos, self._ins_log = [], [], [], []
         calibration = self._calibration_before_loss() if self.flying_mode == GUIDED_NOGPS else None
+        if calibration is not None and not self._worth_it(calibration[1], calibration[-1][-1][0], maneuver):
+            calibration = None   # too old: a second maneuver after one aborted, its INS started before the first
         if calibration is not None:
             return self._fly_on_ins(maneuver, yaw, *calibration)
         self._recording = True
@@ -530,6 +540,15 @@ class Pilot:
         if not since_end:
             return None
         return bias, end, c_nb(*at[1]), np.array(state[3:]), np.array(state[:3]), since_end
+
+    @staticmethod
+    def _worth_it(calibrated_s: float, now_s: float, maneuver: Maneuver) -> bool:
+        """Whether an INS started at calibrated_s (vehicle time; now_s now) bounds the maneuver's track tighter than
+        a hover without GPS would: its errors grow with the cube of its age and beyond."""
+        length_s = maneuver.duration_s + SETTLE_MAX_S
+        age_s = now_s - calibrated_s
+        return track_error_bound_m(length_s, age_s, drift_carried=True) <= \
+            track_error_bound_m(length_s, without_gps=True)
 
     @staticmethod
     def _window(h: dict, t0: float, t1: float):
