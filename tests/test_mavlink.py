@@ -411,7 +411,8 @@ def test_a_maneuver_that_could_not_be_flown_is_flown_when_the_receiver_asks_agai
         time.sleep(0.05)
     v.gps_fix_type = 1
     alarm = {"reason": "auxiliary peak on PRN 7", "t_s": 1.0, "required_spread_m": 4.4,
-             "lines_of_sight": [{"prn": 7, "az_deg": 40.0, "el_deg": 50.0}, {"prn": 9, "az_deg": 200.0, "el_deg": 30.0}]}
+             "lines_of_sight": [{"prn": 7, "az_deg": 40.0, "el_deg": 50.0},
+                                {"prn": 9, "az_deg": 200.0, "el_deg": 30.0}]}
 
     def answers(*kinds, timeout_s=120.0):
         got, deadline = [], time.monotonic() + timeout_s
