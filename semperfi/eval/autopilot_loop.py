@@ -328,9 +328,11 @@ def run_autopilot_loop(out_dir: str | Path, binary: str | Path, speedup: float =
                                                                      '"maneuver_failed"' in flight.read_text()),
               120.0 / speedup + 60, world, 0.2)
         result.phases["verdict"] = world.tau_s
-        failed = _first(flight, "maneuver_failed")
+        failed, done = _first(flight, "maneuver_failed"), _first(flight, "maneuver_done")
+        aborted = flight.read_text().count('"maneuver_failed"')
         log(f"{world.tau_s:6.1f} s  the maneuver is "
-            + (f"aborted: {failed['error']}" if failed else "flown and judged")
+            + ("flown and judged" if done else f"aborted: {failed['error']}")
+            + (f" ({aborted} aborted before: {failed['error']})" if done and failed else "")
             + "; the vehicle is sent back to its hover point")
         time.sleep(2.0 / speedup)   # the flight side hands the vehicle back in the mode it found it in
         obs.set_mode(GUIDED)

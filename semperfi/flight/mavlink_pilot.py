@@ -82,6 +82,12 @@ STILL_MPS = 0.5                           # the hover starts once the vehicle ha
 STILL_S = 0.5
 STOPPED_MPS = 0.2
 SETTLE_MAX_S = 6.0
+# Without GPS the autopilot's velocity is its EKF's dead reckoning, good for a few seconds: ArduCopter SITL stopped
+# aiding 7-15 s after the loss, and its velocity then read 2.9 m/s on a vehicle held level (a second maneuver after
+# an aborted one: "does not hold still", twice). Beyond AUTOPILOT_DR_S it is not used: the vehicle is held level
+# LEVEL_SETTLE_S (its drag stops it; no wind in the model) and taken as still for the hover's calibration.
+AUTOPILOT_DR_S = 5.0
+LEVEL_SETTLE_S = 8.0
 HOVER_TRIES = 3                           # a hover stirred up (a gust; the EKF correcting itself as GPS comes back:
                                           # measured on ArduCopter SITL) is settled and tried again this often
 COMMAND_RETRY_S = 1.0                     # a command without an ACK after this is sent again
@@ -168,6 +174,7 @@ class Pilot:
         self.flying_mode = GUIDED   # GUIDED_NOGPS when the autopilot has no GPS fix (fly)
         self.return_mode: int | None = None   # the mode to give back once the autopilot has a position (regain)
         self._held_since_s: float | None = None   # vehicle time the hold after the last maneuver began (regain)
+        self._unaided = False   # flying without GPS past the autopilot's dead reckoning (AUTOPILOT_DR_S)
         self._ins: Strapdown | None = None    # steering in GUIDED_NOGPS, from the maneuver start
         self._steer_integral = np.zeros(2)    # the velocity loop's integral, and when it was last updated
         self._steered_s: float | None = None
@@ -472,11 +479,12 @@ class Pilot:
             calibration = None   # too old: a second maneuver after one aborted, its INS started before the first
         if calibration is not None:
             return self._fly_on_ins(maneuver, yaw, *calibration)
+        self._unaided = self.flying_mode == GUIDED_NOGPS and self._without_gps_s() > AUTOPILOT_DR_S
         self._recording = True
         try:
             before, before_t = self._hover_until_still(yaw)
             start = self._imu[-1][0]
-            c0, v0 = c_nb(*self.tm.attitude_rpy_rad), self.tm.vel_ned_mps.copy()
+            c0, v0 = c_nb(*self.tm.attitude_rpy_rad), self._velocity().copy()
             p0 = self.tm.pos_ned_m.copy()
             first = len(self._imu) - 1
             if self.flying_mode == GUIDED_NOGPS:
@@ -491,13 +499,20 @@ class Pilot:
                 after, after_t = self._hover(yaw)
                 bias = bias_between(before, after, before_t, after_t, start)
         finally:
-            self._recording = False
+            self._recording = self._unaided = False
         imu = self._imu[first:last]
         t = np.array([s[0] for s in imu]) - start
         ins = integrate(t, np.array([s[1] for s in imu]), np.array([s[2] for s in imu]), c_nb0=c0,
                         vel0_ned_mps=v0, bias=bias)
         return FlownManeuver(ins, start, *self._reported(start, imu[-1][0], p0), bias,
                              self.flying_mode == GUIDED_NOGPS, bound_without_gps=self.flying_mode == GUIDED_NOGPS)
+
+    def _without_gps_s(self) -> float:
+        """How long the autopilot has been without a GPS fix, as far as the link's history shows (0: it has one, or
+        the history does not show it losing it)."""
+        gps = list(self._history["gps"])   # GPS_RAW_INT comes slower than the IMU: this reaches back minutes
+        since = next((t for t, positioned in reversed(gps) if positioned), None)
+        return 0.0 if since is None else gps[-1][0] - since
 
     def _reported(self, start: float, end: float, p0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The autopilot's positions (LOCAL_POSITION_NED) from start to end, from p0 (none without a position)."""
@@ -631,6 +646,8 @@ class Pilot:
         t0 = self._hover_t0 = self._imu_time_now()
         self._stream(lambda t: np.zeros(3), yaw_rad, until=lambda t: t >= t0 + HOVER_S, guard=self._hovering)
         imu, att, pos = self._imu[max(i0 - 1, 0):], self._att[a0:], velocities[max(p0 - 1, 0):]
+        if self._unaided:   # still, as far as anyone knows (the settle held it level long enough)
+            pos = [(imu[0][0], None, np.zeros(3)), (imu[-1][0], None, np.zeros(3))]
         if len(pos) < 2:
             raise PilotError(f"no velocity during the {HOVER_S:g} s hover")
         try:
@@ -645,6 +662,10 @@ class Pilot:
         IMU's biases), for SETTLE_MAX_S at most."""
         t0 = self._hover_t0 = self._imu_time_now()
         state = {}
+        if self._unaided:   # nothing tells it is still: level, for its drag to stop it
+            self._stream(lambda t: np.zeros(3), yaw_rad, until=lambda t: t >= t0 + LEVEL_SETTLE_S,
+                         guard=lambda t: self._fit())
+            return
 
         def still(t: float) -> bool:
             if self._stopped(t, math.inf, state, STILL_MPS):
@@ -725,8 +746,11 @@ class Pilot:
                                                quaternion(roll, pitch, yaw), 0, 0, 0, thrust)
 
     def _velocity(self) -> np.ndarray:
-        """The vehicle's velocity as the flight side knows it: its INS's while one steers, else the autopilot's."""
-        return self.tm.vel_ned_mps if self._ins is None else self._ins.vel_ned_mps
+        """The vehicle's velocity as the flight side knows it: its INS's while one steers, else the autopilot's (none
+        known, zero, once the autopilot's own dead reckoning is past trusting)."""
+        if self._ins is not None:
+            return self._ins.vel_ned_mps
+        return np.zeros(3) if self._unaided else self.tm.vel_ned_mps
 
     def _position(self) -> np.ndarray:
         return self.tm.pos_ned_m if self._ins is None else self._ins_p0 + self._ins.pos_ned_m
