@@ -13,7 +13,8 @@ import numpy as np
 import pymap3d
 import pytest
 
-from semperfi.eval.autopilot_loop import GPS_FIX_3D, SitlWorld, judge_gps_input, truth_at
+from semperfi.eval.autopilot_loop import (GPS_FIX_3D, PACE_FLOOR, PACE_STEP, SitlWorld, judge_gps_input,
+                                         truth_at)
 from semperfi.sim.scenario import load_scenario
 from semperfi.sim.simulate import CHUNK_S
 
@@ -27,7 +28,7 @@ class ScriptedAutopilot:
 
     def __init__(self, boot_s: float = 7.5, hz: float = 50.0):
         """Its clock stops at `until_s` (the world waits for it there) until that is moved on."""
-        self.truth, self.texts = [], []
+        self.truth, self.texts, self.speedups = [], [], []
         self._stop = threading.Event()
         self.until_s = boot_s + 0.05
         self._t = boot_s
@@ -47,6 +48,9 @@ class ScriptedAutopilot:
             self.truth.append(self.state(self._t))
             self._t += self._dt
             time.sleep(0.001)   # far faster than real time: the world keeps its pace
+
+    def set_speedup(self, speedup):
+        self.speedups.append(speedup)
 
     def close(self):
         self._stop.set()
@@ -103,6 +107,22 @@ def test_the_world_renders_on_the_autopilots_clock_from_its_truth_and_switches_t
     lat, lon, _ = pymap3d.ecef2geodetic(*pos[0])
     n, e, _ = pymap3d.geodetic2ned(lat, lon, 0.0, *autopilot.state(world.t_boot0_s + 1.5)[1:3], 0.0)
     assert math.hypot(n, e) < 0.05 and np.linalg.norm(vel[0]) == pytest.approx(EAST_M_S, rel=1e-3)
+    # an autopilot running ahead of the world is held back (this one does not slow down), never under the floor
+    assert autopilot.speedups[0] == pytest.approx(PACE_STEP), autopilot.speedups
+    assert all(PACE_FLOOR - 1e-9 <= x <= 1.0 for x in autopilot.speedups), autopilot.speedups
+
+
+def test_the_world_holds_sitl_back_while_it_lags_and_lets_it_go_once_caught_up():
+    """At x1 the world rendering the signals lagged SITL by up to 4.1 s: the fixes reached ArduCopter that late,
+    and flying back its EKF took them for a glitch and landed. SIM_SPEEDUP, step by step: slower beyond PACE_LAG_S,
+    faster again under half of it, within [PACE_FLOOR, 1] of the speed asked; nothing sent in between."""
+    from types import SimpleNamespace
+    sent = []
+    world = SimpleNamespace(speedup=2.0, pace=2.0, slowest=2.0, obs=SimpleNamespace(set_speedup=sent.append))
+    for lag_s in (0.1, 0.8, 0.8, 0.4, 0.1, 9.0, 9.0, 9.0, 9.0, 9.0, 9.0, 9.0, 0.0):
+        SitlWorld._pace(world, lag_s)
+    assert sent == pytest.approx([1.6, 1.28, 1.6, 1.28, 1.024, 0.8192, 0.65536, 0.524288, 0.5, 0.625])
+    assert world.slowest == pytest.approx(0.5) and world.pace == pytest.approx(0.625)
 
 
 def test_a_world_lagging_the_autopilot_renders_the_vehicle_where_it_was_at_its_own_time():

@@ -185,6 +185,11 @@ class Observer:
                                                           0, 0, 0, 0, 0, 0, 0, 0)
         self.wait_height(altitude_m, timeout_s)
 
+    def set_speedup(self, speedup: float) -> None:
+        """SITL's speed from now on (SIM_SPEEDUP, taken at run time)."""
+        with self._lock:   # the world's thread sends this while the loop's commands go out
+            self.conn.mav.param_set_send(1, 1, b"SIM_SPEEDUP", float(speedup), mav.MAV_PARAM_TYPE_REAL32)
+
     def set_mode(self, custom_mode: int) -> None:
         """Ask for a mode (no wait: with the recording thread on, the ACK is the thread's)."""
         self.conn.mav.command_long_send(1, 1, mav.MAV_CMD_DO_SET_MODE, 0, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
