@@ -13,8 +13,7 @@ import numpy as np
 import pymap3d
 import pytest
 
-from semperfi.eval.autopilot_loop import (GPS_FIX_3D, PACE_FLOOR, PACE_STEP, SitlWorld, judge_gps_input,
-                                         truth_at)
+from semperfi.eval.autopilot_loop import GPS_FIX_3D, PACE_FLOOR, SitlWorld, judge_gps_input, truth_at
 from semperfi.sim.scenario import load_scenario
 from semperfi.sim.simulate import CHUNK_S
 
@@ -107,8 +106,8 @@ def test_the_world_renders_on_the_autopilots_clock_from_its_truth_and_switches_t
     lat, lon, _ = pymap3d.ecef2geodetic(*pos[0])
     n, e, _ = pymap3d.geodetic2ned(lat, lon, 0.0, *autopilot.state(world.t_boot0_s + 1.5)[1:3], 0.0)
     assert math.hypot(n, e) < 0.05 and np.linalg.norm(vel[0]) == pytest.approx(EAST_M_S, rel=1e-3)
-    # an autopilot running ahead of the world is held back (this one does not slow down), never under the floor
-    assert autopilot.speedups[0] == pytest.approx(PACE_STEP), autopilot.speedups
+    # whether this autopilot ran ahead depends on the machine's load: when held back, never under the floor (the
+    # steps themselves: the next test)
     assert all(PACE_FLOOR - 1e-9 <= x <= 1.0 for x in autopilot.speedups), autopilot.speedups
 
 
