@@ -149,6 +149,29 @@ def test_a_maneuver_the_flight_side_aborted_is_asked_for_again_and_judges_the_gu
     assert max(errors.get("nominal", [0.0])) < 10.0, errors["nominal"]
 
 
+def test_guesses_a_second_maneuver_shows_wrong_teach_the_attackers_power(tmp_path, brdc_path):
+    """The same with an attacker 3 dB weaker: every guess (the stronger peak) cancelled the legitimate signal. The
+    second maneuver shows each wrong, and each is swapped and alarmed afresh -- where the same guess was made again,
+    to the end. Now the judged guesses establish the power relation (the attacker's peak the weaker), and the fresh
+    alarms are decided by it, not guessed."""
+    sides = []
+
+    def flight_side(track, span_s):
+        sides.append(_AbortsFirst(track, span_s))
+        return sides[0]
+    events, _ = _fly_through_attack(tmp_path, brdc_path, 18.0, "attacker.power_advantage_db=-3",
+                                    flight_side=flight_side)
+    retry = next(e for e in events if e["event"] == "maneuver_retry")
+    wrong = [v["prn"] for e in events if e["event"] == "identification" for v in e["verdicts"]
+             if v.get("reason") == "maneuver: the peak followed through it" and not v["adversarial"]]
+    assert len(wrong) >= 3 and set(wrong) <= set(retry["guessed"]), (wrong, retry)
+    learnt = [e for e in events if e["event"] == "attacker_power" and e["t_rx_s"] > retry["t_rx_s"]][-1]
+    assert len(learnt["gaps_db"]) >= 3 and all(g < 0 for g in learnt["gaps_db"].values()), learnt
+    inferred = [e["prn"] for e in events if e["event"] == "cancellation_start" and e["t_rx_s"] > retry["t_rx_s"]
+                and not e["guessed"] and "weaker" in e["reason"]]
+    assert len(inferred) >= 3, [e for e in events if e["event"] == "cancellation_start"]
+
+
 def test_run_refuses_a_malformed_imu_track_in_one_line(tmp_path):
     import subprocess
     import sys

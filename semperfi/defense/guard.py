@@ -186,6 +186,7 @@ class SpoofGuard:
         # PRN -> the attacker's peak's power over its twin's (dB), where continuity named the attacker's peak (it
         # appeared after the receiver had the other): the power relation to fall back on when no maneuver decides
         self._newcomer_gaps_db: dict[int, float] = {}
+        self._guess_gaps_db: dict[int, float] = {}       # a guessed cancellation: its peak over the other (dB)
         # a spoofer was seen parting from signals it had been aligned with: a PRN's lone peak that predates the
         # attack may still be the two merged
         self.takeover = False
@@ -631,9 +632,13 @@ class SpoofGuard:
         now = self._seen - self.window
         self._looked = (self._raw.array(), now)
         one_peak = {v.prn: v for v in ident.verdicts if v.decided and (v.prn, 1) not in ident.followers}
+        judged_gaps_db = {}   # a judged guess's two peaks: which was the attacker's, and how much stronger
         for prn, v in one_peak.items():
             if prn in self.cancel_started:
-                self._judge_cancelled(prn, ident.followers[(prn, 0)], v.adversarial, t_s)
+                gap = self._guess_gaps_db.get(prn)
+                right = self._judge_cancelled(prn, ident.followers[(prn, 0)], v.adversarial, t_s)
+                if right is not None and gap is not None:
+                    judged_gaps_db[prn] = gap if right else -gap
             elif prn not in self.awaiting and v.adversarial:
                 self.gave_up[prn] = "identified as the attacker's (maneuver), no legitimate twin found"
             elif prn not in self.awaiting:
@@ -661,6 +666,9 @@ class SpoofGuard:
                 pair = self.awaiting[prn].pair
                 gap = abs(gap_db(pair.main, pair.auxiliary))
                 gaps_db[prn] = gap if v.adversarial else -gap
+        # guesses judged (a maneuver after a failed one): a wrong guess is swapped and its PRN alarmed afresh, where
+        # the relation they show decides it (was: guessed wrong again, the fixes on the attacker's peaks to the end)
+        gaps_db.update(judged_gaps_db)
         self._emit("attacker_power", t_s, gaps_db={prn: round(g, 1) for prn, g in gaps_db.items()})
         self.attacker_stronger = power_relation(gaps_db)
         if self.attacker_stronger is not None:
@@ -696,18 +704,21 @@ class SpoofGuard:
                       "maneuver: the peak followed follows the vehicle's motion; the attacker's is the other path "
                       "under it")
 
-    def _judge_cancelled(self, prn: int, follower, adversarial: bool, t_s: float) -> None:
+    def _judge_cancelled(self, prn: int, follower, adversarial: bool, t_s: float) -> bool | None:
         """A PRN cancelled on a guess before the maneuver, its raw peak followed through it: the verdict says whether
         the guess was right (the followed peak is the cancelled one and did not follow the vehicle, or is the
         other one and did). The two are compared at the cancelled track's latest code epoch: the canceller runs
-        behind the raw stream, so the look's sample is not yet in its history. Nothing compared, nothing judged."""
+        behind the raw stream, so the look's sample is not yet in its history. Nothing compared, nothing judged.
+        Returns whether the guess was right (None: not judged)."""
         if prn not in self.guessed:
-            return
+            return None
         # at its latest epoch, a track's code phase is 0 by definition
         followed = [follower.peak_at(tr.channel.latest_epoch_sample) for tr in self._tracks(prn) if tr.channel.ms > 1]
         at = [chips_apart(f.code_phase_chips, 0.0) < 0.5 for f in followed if f is not None]
         if at:
             self.identified(prn, any(at) == adversarial, t_s, "maneuver: the peak followed through it")
+            return any(at) == adversarial
+        return None
 
     def _verdict_pair(self, prn: int, decided: dict, flagged: dict, followers: dict):
         """(the attacker's follower, the legitimate one's, why) for an awaiting PRN at the verdict, or Nones: decided
@@ -776,6 +787,8 @@ class SpoofGuard:
         self.cancel_started.setdefault(prn, t_s)
         if choice.guessed:
             self.guessed.add(prn)
+            if choice.legitimate is not None:
+                self._guess_gaps_db[prn] = gap_db(choice.adversarial, choice.legitimate)
         if choice.legitimate is None and not choice.guessed and stage == 0:
             self._blind.add(prn)
         self.pending_verify[prn] = (t_s + self.d["verify_after_s"], peak, stage)
