@@ -122,19 +122,25 @@ class _AbortsFirst:
         return out
 
 
-def test_a_maneuver_the_flight_side_aborted_is_asked_for_again_and_judges_the_guesses(tmp_path, brdc_path):
-    """The closed loop on ArduCopter SITL at x1: the flight side aborted the maneuver at its geofence, the receiver
-    cancelled every spoofer on a guess (the stronger peak, right here) and nobody asked for a second maneuver: its
-    fixes stayed `recovering`, the autopilot never got a position it could use, and landed. Now the receiver asks
-    again while guesses wait; the second maneuver judges them, and the true position is called recovered."""
+def _aborted_first(tmp_path, brdc_path, power_advantage_db: float):
+    """The hover-maneuver-hover flight, the attacker on from the first sample, beside a flight side that aborts its
+    first maneuver: (events, errors by fix state, the flight side)."""
     sides = []
 
     def flight_side(track, span_s):
         sides.append(_AbortsFirst(track, span_s))
         return sides[0]
-    events, errors = _fly_through_attack(tmp_path, brdc_path, 18.0, "attacker.power_advantage_db=6",
+    events, errors = _fly_through_attack(tmp_path, brdc_path, 18.0, f"attacker.power_advantage_db={power_advantage_db}",
                                          flight_side=flight_side)
-    side = sides[0]
+    return events, errors, sides[0]
+
+
+def test_a_maneuver_the_flight_side_aborted_is_asked_for_again_and_judges_the_guesses(tmp_path, brdc_path):
+    """The closed loop on ArduCopter SITL at x1: the flight side aborted the maneuver at its geofence, the receiver
+    cancelled every spoofer on a guess (the stronger peak, right here) and nobody asked for a second maneuver: its
+    fixes stayed `recovering`, the autopilot never got a position it could use, and landed. Now the receiver asks
+    again while guesses wait; the second maneuver judges them, and the true position is called recovered."""
+    events, errors, side = _aborted_first(tmp_path, brdc_path, 6.0)
     kinds = [e["event"] for e in events]
     retry = next(e for e in events if e["event"] == "maneuver_retry")
     assert len(side.alarms) == 2 and kinds.count("maneuver_failed") == 1, side.alarms
@@ -154,13 +160,7 @@ def test_guesses_a_second_maneuver_shows_wrong_teach_the_attackers_power(tmp_pat
     second maneuver shows each wrong, and each is swapped and alarmed afresh -- where the same guess was made again,
     to the end. Now the judged guesses establish the power relation (the attacker's peak the weaker), and the fresh
     alarms are decided by it, not guessed."""
-    sides = []
-
-    def flight_side(track, span_s):
-        sides.append(_AbortsFirst(track, span_s))
-        return sides[0]
-    events, _ = _fly_through_attack(tmp_path, brdc_path, 18.0, "attacker.power_advantage_db=-3",
-                                    flight_side=flight_side)
+    events, _, _ = _aborted_first(tmp_path, brdc_path, -3.0)
     retry = next(e for e in events if e["event"] == "maneuver_retry")
     wrong = [v["prn"] for e in events if e["event"] == "identification" for v in e["verdicts"]
              if v.get("reason") == "maneuver: the peak followed through it" and not v["adversarial"]]
