@@ -122,7 +122,12 @@ class ManeuverIdentifier:
 
     def __init__(self, track: ImuTrack | None, fs_hz: float, if_hz: float = 0.0):
         """track None: it comes later (LinkedManeuver, from the flight side)."""
-        self.track, self.fs_hz, self.if_hz = track, fs_hz, if_hz
+        self.fs_hz, self.if_hz = fs_hz, if_hz
+        self._unflown(track)
+
+    def _unflown(self, track: ImuTrack | None) -> None:
+        """The state before any peak is followed, for this track."""
+        self.track = track
         self.window_s = find_maneuver(track) if track is not None else None
         self.drift_bound_m = INS_DRIFT_M   # how far the INS track may be from the flight at the window's end
         self.followers: dict[tuple[int, int], PeakFollower] = {}
@@ -226,6 +231,12 @@ class LinkedManeuver(ManeuverIdentifier):
     def __init__(self, channel, fs_hz: float, if_hz: float = 0.0, ready=lambda: True, sky=lambda: []):
         super().__init__(None, fs_hz, if_hz)
         self.channel, self.ready, self.sky = channel, ready, sky
+        self.attempts = 1
+        self._told: dict[str, object] = {"failed": None, "closed": None, "rejected": 0}
+
+    def _unflown(self, track: ImuTrack | None) -> None:
+        """An attempt not yet asked for."""
+        super()._unflown(track)
         self.wanted: tuple[float, int] | None = None
         self.requested_s: float | None = None
         self.accepted_s: float | None = None
@@ -233,8 +244,6 @@ class LinkedManeuver(ManeuverIdentifier):
         self.vehicle_minus_sample_s = 0.0   # vehicle clock - sample clock (0: a shared clock, as in a lockstep world)
         self.failed: str | None = None
         self.failed_s: float | None = None
-        self.attempts = 1
-        self._told: dict[str, object] = {"failed": None, "closed": None, "rejected": 0}
 
     def retry(self, t_s: float) -> bool:
         """After a failed attempt, RETRY_S on: a fresh one, its alarm sent at the next request. False when none is
@@ -243,11 +252,7 @@ class LinkedManeuver(ManeuverIdentifier):
                 or self.attempts >= self.MAX_ATTEMPTS or getattr(self.channel, "closed", None):
             return False
         self.attempts += 1
-        self.track = self.window_s = self.wanted = self.requested_s = self.accepted_s = self.maneuver_id = None
-        self.failed = self.failed_s = None
-        self.vehicle_minus_sample_s, self.drift_bound_m = 0.0, INS_DRIFT_M
-        self.followers, self._buf, self._base = {}, np.empty(0, dtype=np.complex64), 0
-        self.started = self.ended = False
+        self._unflown(None)
         self._told["failed"] = None
         return True
 
