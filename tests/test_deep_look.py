@@ -27,17 +27,17 @@ class Events:
         self.rows.append({"event": kind, "t_s": t_s, **fields})
 
 
-def _samples(seed: int = 7) -> np.ndarray:
+def _samples(signals=SIGNALS, doppler_hz=DOPPLER_HZ, seed: int = 7) -> np.ndarray:
     """The signals (no data bits) in unit complex noise: amplitude sqrt(C/N0 x 2 / fs)."""
     rng = np.random.default_rng(seed)
     n = int(SECONDS * FS)
     t = np.arange(n) / FS
     x = (rng.standard_normal(n) + 1j * rng.standard_normal(n)).astype(np.complex64)
-    for prn, chips, cn0 in SIGNALS:
+    for prn, chips, cn0 in signals:
         code = ca_code(prn).astype(np.float32)
-        idx = np.floor(chips + t * 1.023e6 * (1 + DOPPLER_HZ[prn] / 1575.42e6)).astype(np.int64) % 1023
+        idx = np.floor(chips + t * 1.023e6 * (1 + doppler_hz[prn] / 1575.42e6)).astype(np.int64) % 1023
         amp = np.sqrt(10 ** (cn0 / 10) * 2 / FS)
-        x += (amp * code[idx] * np.exp(2j * np.pi * (DOPPLER_HZ[prn] * t + 0.1 * prn))).astype(np.complex64)
+        x += (amp * code[idx] * np.exp(2j * np.pi * (doppler_hz[prn] * t + 0.1 * prn))).astype(np.complex64)
     return x
 
 
@@ -75,3 +75,30 @@ def test_without_the_longer_look_that_twin_is_not_found(samples, monkeypatch):
     monkeypatch.setattr(guard_module.SpoofGuard, "_look_deeper", lambda self, cafs: None)
     alarms = _alarms(_guard_over(samples))
     assert 5 in alarms and 9 not in alarms
+
+
+# PRN 5 as above makes the attack known; PRN 11: a spoofer at 52 dB-Hz over its twin 15 dB weaker 1.1 chips off
+# (GPS-SDR-SIM, path loss, +15 dB, 500 m: PRN 10 so, passed through `clean` 320 m off for a whole minute); PRN 20: a
+# satellite alone as strong as that spoofer, which the fit must not split into two
+CLOSE_DOPPLER_HZ = {5: 1200.0, 11: 700.0, 20: -1800.0}
+CLOSE_SIGNALS = [(5, 100.0, 50.0), (5, 103.0, 44.0), (11, 500.0, 52.0), (11, 498.9, 37.0), (20, 800.37, 52.0)]
+
+
+@pytest.fixture(scope="module")
+def close_samples():
+    return _samples(CLOSE_SIGNALS, CLOSE_DOPPLER_HZ)
+
+
+def test_a_twin_close_under_a_much_stronger_spoofer_is_found_by_the_longer_looks_fit(close_samples):
+    alarms = _alarms(_guard_over(close_samples))
+    assert 11 in alarms and alarms[11]["found_by"] == "deep", alarms.get(11)
+    spoofer_chips = (500.0 + alarms[11]["t_s"] * 1.023e6 * (1 + CLOSE_DOPPLER_HZ[11] / 1575.42e6)) % 1023
+    assert chips_apart(alarms[11]["main"]["code_phase_chips"], spoofer_chips) < 0.1
+    assert alarms[11]["separation_chips"] == pytest.approx(1.1, abs=0.15)
+    assert 20 not in alarms                   # a strong satellite alone is one path
+
+
+def test_without_the_fit_that_close_twin_is_not_found(close_samples, monkeypatch):
+    monkeypatch.setattr(guard_module.SpoofGuard, "_deep_fit", lambda self, window, deep, cafs: [])
+    alarms = _alarms(_guard_over(close_samples))
+    assert 5 in alarms and 11 not in alarms

@@ -58,6 +58,9 @@ DEEP_NONCOHERENT = 10
 DEEP_SPAN_HZ = 250.0      # a twin's Doppler is within a few hertz of a static spoofer's; a moving one's is found by
 DEEP_STEP_HZ = 50.0       # the full searches
 DEEP_CROSS_TALK_BLOCK_S = 1e-3   # cross-talk judged per code period (is_cross_talk): the strong signals' bit flips
+# The longer look's two-path fit (a fit is 8-35 ms of CPU a PRN at 2.6-10 MSa/s) only under a peak this strong: a twin
+# more than the fit's regular floor (13 dB) under a weaker one is under 30 dB-Hz, which 100 ms cannot resolve
+DEEP_FIT_MIN_CN0_DBHZ = 43.0
 BEAT_STALE_S = 1.0     # a time push's beat unseen on a PRN this long: its separation is no longer known
 COMMON_WAIT_S = 1.0    # a beat on a few PRNs alike, no alarm yet: how long the others have to show it too
 MAX_SWAPS = 2          # a PRN whose cancelled peak is found legitimate this often is given up
@@ -452,7 +455,7 @@ class SpoofGuard:
             deep = acquire(window, self.fs_hz, [prn], grid, self.if_hz, DEEP_COHERENT_MS, DEEP_NONCOHERENT,
                            a["pfa"], EXAMINE_MAX_PEAKS, excise=True, tail_threshold=True)[prn]
             pairs = auxiliary_peaks(deep, {**in_units_of(deep, cafs), prn: deep}, self.detector.cfg, self.fs_hz,
-                                    block_s=DEEP_CROSS_TALK_BLOCK_S)
+                                    block_s=DEEP_CROSS_TALK_BLOCK_S) or self._deep_fit(window, deep, cafs)
             offsets = [chips_offset(p.auxiliary.code_phase_chips, p.main.code_phase_chips) for p in pairs]
             again = [p for p, o in zip(pairs, offsets)
                      if any(abs(o - seen) < TWIN_MATCH_CHIPS for seen in self._deep_seen.get(prn, []))]
@@ -465,6 +468,21 @@ class SpoofGuard:
             if self.d["mode"] == "full":
                 self._on_alarm(Alarm(t_s, prn, pair, None), t_s)
         self._looked = looked
+
+    def _deep_fit(self, window: np.ndarray, deep, cafs: dict) -> list:
+        """A twin too close under its spoofer's peak for the longer look's CAF to show it apart, from the two-path
+        fit over that look's samples (GPS-SDR-SIM, path loss, +15 dB, 500 m: a twin 14.6 dB under its spoofer 1 chip
+        off, under the fit's regular floor and at 1-3 detection thresholds in the CAF beside the spoofer's sidelobes,
+        so that spoofer went through `clean` for the whole minute, 320 m off)."""
+        if deep.best.cn0_dbhz < DEEP_FIT_MIN_CN0_DBHZ or not examinable(
+                deep.best, deep, {**in_units_of(deep, cafs), deep.prn: deep}, self.detector.cfg, self.fs_hz,
+                DEEP_CROSS_TALK_BLOCK_S):
+            return []
+        pair = hidden_pair(window, self.fs_hz, self.if_hz, deep.best, self.detector.cfg, deep=True)
+        if pair is None or is_cross_talk(pair.auxiliary, deep, {**in_units_of(deep, cafs), deep.prn: deep},
+                                         self.detector.cfg, self.fs_hz, block_s=TWO_PATH_BLOCK_S):
+            return []
+        return [pair]
 
     def _note_awaiting_pairs(self, cafs: dict, first: int) -> None:
         """Where the two peaks of each PRN awaiting a verdict are now (the receiver follows both until it comes)."""
