@@ -796,3 +796,18 @@ def test_an_attack_dealt_with_is_settled_after_a_takeover_and_beside_an_idle_fli
     del guard.detector.close[12]
     guard.maneuver.request(11.0, 5)      # a maneuver asked for: its peaks are followed at every look
     assert not guard._settled()
+
+
+def test_a_twin_is_biased_by_what_its_spoofers_cancellation_leaves_near_it():
+    """canceller.biased_twin: a spoofer 10 dB stronger within 0.6 chip leaves, at the 25 dB a cancellation is assumed
+    to achieve, its residual within 15 dB of the twin; a cancellation measured to achieve less leaves a weaker
+    spoofer's residual as close (SITL, +3 dB takeover: 12-18 dB, a fix called recovered 10.5 m off), while one
+    measured to achieve more does not clear a twin that close (the measurement flatters there)."""
+    from semperfi.defense.canceller import biased_twin
+    assert biased_twin(10.0, 0.4) and biased_twin(16.6, -0.47)
+    assert not biased_twin(9.0, 0.4) and not biased_twin(15.0, 0.9)
+    assert biased_twin(2.7, -0.48, attenuation_db=11.8)          # 2.7 - 11.8 = -9.1 dB: within 15 dB of the twin
+    assert biased_twin(6.0, 0.5, attenuation_db=20.0)
+    assert not biased_twin(2.7, -0.48, attenuation_db=19.7)      # -17 dB
+    assert biased_twin(16.6, 0.47, attenuation_db=38.0)          # measured better than assumed: not cleared
+    assert not biased_twin(2.7, 0.9, attenuation_db=5.0)         # far enough whatever is left

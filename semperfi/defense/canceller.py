@@ -195,18 +195,25 @@ def rotation_per_period(values: np.ndarray, lag: int = ROTATION_LAG_PERIODS) -> 
 JOINT_WITHIN_CHIPS = 1.2
 TWIN_GAIN = 0.5                   # fraction of each buffer's measured twin offset error applied
 REPORT_FIT_EVERY = 4              # buffers: the twin fitted again for the attenuation report (report only)
-# A legitimate signal within BIASED_WITHIN_CHIPS of a spoofer BIASED_TWIN_DB stronger keeps, after cancellation, the
-# spoofer's residual (some 25 dB down) within 15 dB of itself, and the closer the twin the worse the spoofer's own
-# estimate: a multipath at under a chip. Measured on GPS-SDR-SIM at +15 dB, 500 m: twins 0.4-0.5 chip away biased
-# 2-8 m, those 0.85-1.2 chip away under 1.5 m
+# A legitimate signal within BIASED_WITHIN_CHIPS of its spoofer keeps, after cancellation, the spoofer's residual
+# within BIASED_RESIDUAL_DB of itself when the spoofer is BIASED_TWIN_DB stronger (the residual some
+# ASSUMED_ATTENUATION_DB down), and the closer the twin the worse the spoofer's own estimate: a multipath at under a
+# chip. Measured on GPS-SDR-SIM at +15 dB, 500 m: twins 0.4-0.5 chip away biased 2-8 m, those 0.85-1.2 chip away under
+# 1.5 m. A cancellation that achieves less leaves a weaker attacker's residual as close: ArduCopter SITL, a +3 dB
+# takeover, a twin 0.2-0.5 chip from its spoofer, the first windows 12-18 dB: its range put a fix called recovered
+# 10.5 m off. A measured attenuation counts only where it is worse than the assumed one: with a twin that close the
+# measurement (which takes the fitted twin out) flatters.
 BIASED_TWIN_DB = 10.0
+ASSUMED_ATTENUATION_DB = 25.0
+BIASED_RESIDUAL_DB = BIASED_TWIN_DB - ASSUMED_ATTENUATION_DB
 BIASED_WITHIN_CHIPS = 0.6
 
 
-def biased_twin(advantage_db: float, offset_chips: float) -> bool:
-    """Whether a legitimate twin this far (chips) under a spoofer this much stronger (dB) keeps a biased range after
-    the spoofer's cancellation."""
-    return advantage_db >= BIASED_TWIN_DB and abs(offset_chips) < BIASED_WITHIN_CHIPS
+def biased_twin(advantage_db: float, offset_chips: float, attenuation_db: float | None = None) -> bool:
+    """Whether a legitimate twin this far (chips) under a spoofer this much stronger (dB), whose cancellation
+    achieved attenuation_db (None: not measured yet), keeps a biased range after the spoofer's cancellation."""
+    achieved = ASSUMED_ATTENUATION_DB if attenuation_db is None else min(attenuation_db, ASSUMED_ATTENUATION_DB)
+    return advantage_db - achieved >= BIASED_RESIDUAL_DB and abs(offset_chips) < BIASED_WITHIN_CHIPS
 
 
 class AdversaryTrack:
@@ -300,6 +307,11 @@ class AdversaryTrack:
         if update:
             self._legit_ref = ref
         return est
+
+    @property
+    def latest_attenuation_db(self) -> float | None:
+        """The attenuation of the latest window measured (a lower bound counts as its value), None before any."""
+        return self.attenuation_db[-1][0] if self.attenuation_db else None
 
     @property
     def twin_advantage_db(self) -> float | None:

@@ -454,8 +454,9 @@ class SpoofGuard:
             grid = DopplerGrid(caf.best.doppler_hz, DEEP_SPAN_HZ, DEEP_STEP_HZ)
             deep = acquire(window, self.fs_hz, [prn], grid, self.if_hz, DEEP_COHERENT_MS, DEEP_NONCOHERENT,
                            a["pfa"], EXAMINE_MAX_PEAKS, excise=True, tail_threshold=True)[prn]
-            pairs = auxiliary_peaks(deep, {**in_units_of(deep, cafs), prn: deep}, self.detector.cfg, self.fs_hz,
-                                    block_s=DEEP_CROSS_TALK_BLOCK_S) or self._deep_fit(window, deep, cafs)
+            seen = {**in_units_of(deep, cafs), prn: deep}
+            pairs = auxiliary_peaks(deep, seen, self.detector.cfg, self.fs_hz, block_s=DEEP_CROSS_TALK_BLOCK_S) \
+                or self._deep_fit(window, deep, seen)
             offsets = [chips_offset(p.auxiliary.code_phase_chips, p.main.code_phase_chips) for p in pairs]
             again = [p for p, o in zip(pairs, offsets)
                      if any(abs(o - seen) < TWIN_MATCH_CHIPS for seen in self._deep_seen.get(prn, []))]
@@ -469,18 +470,17 @@ class SpoofGuard:
                 self._on_alarm(Alarm(t_s, prn, pair, None), t_s)
         self._looked = looked
 
-    def _deep_fit(self, window: np.ndarray, deep, cafs: dict) -> list:
+    def _deep_fit(self, window: np.ndarray, deep, seen: dict) -> list:
         """A twin too close under its spoofer's peak for the longer look's CAF to show it apart, from the two-path
         fit over that look's samples (GPS-SDR-SIM, path loss, +15 dB, 500 m: a twin 14.6 dB under its spoofer 1 chip
         off, under the fit's regular floor and at 1-3 detection thresholds in the CAF beside the spoofer's sidelobes,
         so that spoofer went through `clean` for the whole minute, 320 m off)."""
-        if deep.best.cn0_dbhz < DEEP_FIT_MIN_CN0_DBHZ or not examinable(
-                deep.best, deep, {**in_units_of(deep, cafs), deep.prn: deep}, self.detector.cfg, self.fs_hz,
-                DEEP_CROSS_TALK_BLOCK_S):
+        cfg = self.detector.cfg
+        if deep.best.cn0_dbhz < DEEP_FIT_MIN_CN0_DBHZ or not examinable(deep.best, deep, seen, cfg, self.fs_hz,
+                                                                        DEEP_CROSS_TALK_BLOCK_S):
             return []
-        pair = hidden_pair(window, self.fs_hz, self.if_hz, deep.best, self.detector.cfg, deep=True)
-        if pair is None or is_cross_talk(pair.auxiliary, deep, {**in_units_of(deep, cafs), deep.prn: deep},
-                                         self.detector.cfg, self.fs_hz, block_s=TWO_PATH_BLOCK_S):
+        pair = hidden_pair(window, self.fs_hz, self.if_hz, deep.best, cfg, deep=True)
+        if pair is None or is_cross_talk(pair.auxiliary, deep, seen, cfg, self.fs_hz, block_s=TWO_PATH_BLOCK_S):
             return []
         return [pair]
 
@@ -977,12 +977,13 @@ class SpoofGuard:
         merged with its legitimate twin (its single peak may be a spoofer's whose twin is unseen)."""
         return not (self.resolved(prn) or prn in self.cancel_started or prn in self.merged)
 
-    def close_twin(self, prn: int) -> tuple[float, float] | None:
-        """(how much stronger than its legitimate twin the spoofer is in dB, the twin's offset in chips) when the two
-        lie within JOINT_WITHIN_CHIPS, from the strongest of the PRN's tracks; None when none is so close."""
-        twins = [(tr.twin_advantage_db, tr.legit_offset_chips) for tr in self._tracks(prn)
+    def close_twin(self, prn: int) -> tuple[float, float, float | None] | None:
+        """(how much stronger than its legitimate twin the spoofer is in dB, the twin's offset in chips, the
+        attenuation its cancellation achieved lately in dB or None) when the two lie within JOINT_WITHIN_CHIPS, from
+        the strongest of the PRN's tracks; None when none is so close (canceller.biased_twin takes these)."""
+        twins = [(tr.twin_advantage_db, tr.legit_offset_chips, tr.latest_attenuation_db) for tr in self._tracks(prn)
                  if tr.twin_advantage_db is not None]
-        return max(twins) if twins else None
+        return max(twins, key=lambda t: t[0]) if twins else None
 
     def _forget_lost(self, t_s: float) -> None:
         """A PRN whose every cancellation track lost the spoofer is examined afresh: alarmed again if the spoofer is
