@@ -102,3 +102,12 @@ def test_without_the_fit_that_close_twin_is_not_found(close_samples, monkeypatch
     monkeypatch.setattr(guard_module.SpoofGuard, "_deep_fit", lambda self, window, deep, seen: [])
     alarms = _alarms(_guard_over(close_samples))
     assert 5 in alarms and 11 not in alarms
+
+
+def test_a_longer_look_that_sees_nothing_fits_nothing(close_samples):
+    """The longer look's CAF may hold no peak at all (the signal gone between the regular look and it): no fit, no
+    error (GPS-SDR-SIM, 1 km, +15 dB: an internal error 13.8 s into clean, which ended the cleaning there)."""
+    from semperfi.receiver import Caf
+    guard = SpoofGuard(load_config(None, []), FS, 0.0, Events())
+    empty = Caf(11, np.zeros(1), np.zeros(1), None, 1.0, 0.01, ())
+    assert guard._deep_fit(close_samples[:int(0.1 * FS)], empty, {11: empty}) == []

@@ -476,10 +476,11 @@ class SpoofGuard:
         off, under the fit's regular floor and at 1-3 detection thresholds in the CAF beside the spoofer's sidelobes,
         so that spoofer went through `clean` for the whole minute, 320 m off)."""
         cfg = self.detector.cfg
-        if deep.best.cn0_dbhz < DEEP_FIT_MIN_CN0_DBHZ or not examinable(deep.best, deep, seen, cfg, self.fs_hz,
-                                                                        DEEP_CROSS_TALK_BLOCK_S):
+        main = deep.best
+        if main is None or main.cn0_dbhz < DEEP_FIT_MIN_CN0_DBHZ or not examinable(main, deep, seen, cfg, self.fs_hz,
+                                                                                    DEEP_CROSS_TALK_BLOCK_S):
             return []
-        pair = hidden_pair(window, self.fs_hz, self.if_hz, deep.best, cfg, deep=True)
+        pair = hidden_pair(window, self.fs_hz, self.if_hz, main, cfg, deep=True)
         if pair is None or is_cross_talk(pair.auxiliary, deep, seen, cfg, self.fs_hz, block_s=TWO_PATH_BLOCK_S):
             return []
         return [pair]
