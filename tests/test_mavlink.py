@@ -277,6 +277,24 @@ def slow_vehicle(monkeypatch):
     v.close()
 
 
+def test_without_gps_a_vehicle_that_ignores_the_attitude_targets_aborts_the_maneuver(slow_vehicle):
+    """In GUIDED_NOGPS the autopilot is asked for attitudes (the velocity loop is the flight side's own, and its lag
+    is no disobedience: on ArduCopter SITL it aborted three maneuvers of one flight): a vehicle that holds level
+    whatever it is asked is caught by its reported attitude."""
+    v, port = slow_vehicle
+    pilot = Pilot(f"udpout:127.0.0.1:{port}", timeout_s=10)
+    v.gps_fix_type = 1
+    try:
+        status = pilot.prepare()
+        maneuver = draw(ManeuverLimits(), track_heading_rad=status.track_heading_rad,
+                        altitude_m=status.height_above_home_m, rng=random.Random(8))
+        v._attitude = lambda msg: None   # taken, obeyed by nothing: it holds level
+        with pytest.raises(ManeuverAborted, match="deg off the attitude targets"):
+            pilot.fly(maneuver)
+    finally:
+        pilot.close()
+
+
 def test_without_gps_the_maneuver_is_flown_on_attitude_targets_and_the_mode_given_back_with_the_fix(slow_vehicle):
     """Issue 24: while SemperFi withholds the position (spoofing suspected) ArduCopter has no GPS; in GUIDED its EKF
     dead-reckons ~7 s and its failsafe lands the vehicle (SITL did, aborting the maneuver). The flight side then
