@@ -811,3 +811,23 @@ def test_a_twin_is_biased_by_what_its_spoofers_cancellation_leaves_near_it():
     assert not biased_twin(2.7, -0.48, attenuation_db=19.7)      # -17 dB
     assert biased_twin(16.6, 0.47, attenuation_db=38.0)          # measured better than assumed: not cleared
     assert not biased_twin(2.7, 0.9, attenuation_db=5.0)         # far enough whatever is left
+
+
+def test_a_fix_on_a_channel_just_started_is_not_yet_called_recovered():
+    """A range from a channel acquired a moment ago is still settling (its code loop and carrier smoothing start from
+    the acquisition's code phase: on ArduCopter SITL the eight channels acquired again at a takeover's verdict gave
+    fixes called recovered up to 10.7 m off in their first second): such fixes stay recovering until every channel
+    in them has tracked RECOVERED_SETTLE_S past its pull-in."""
+    from types import SimpleNamespace
+
+    from semperfi.defense.defended import RECOVERED_SETTLE_S, DefendedReceiver
+    rx = DefendedReceiver(load_config(None, []), 2.6e6)
+    pull_in_ms = 500
+
+    def channel(ms):
+        return SimpleNamespace(ms=ms, cfg=SimpleNamespace(pull_in_ms=pull_in_ms))
+    settled_ms = pull_in_ms + RECOVERED_SETTLE_S * 1e3
+    rx.inner.channels = {3: channel(60_000), 7: channel(settled_ms - 100)}
+    assert not rx._settled([3, 7]) and rx._settled([3])
+    rx.inner.channels[7] = channel(settled_ms)
+    assert rx._settled([3, 7])

@@ -19,6 +19,11 @@ from .rectifier import Rectifier
 
 
 MAX_RECOVERED_RESIDUAL_M = 30.0
+# A channel started this recently (past its pull-in) gives a range still settling: its code loop and its carrier
+# smoothing start from the acquisition's code phase (ArduCopter SITL, a takeover: the eight channels acquired again at
+# the verdict gave the first fixes called recovered 8-10.7 m off, 4-4.4 m of residual rms, 6 m a second later). Their
+# fixes are recovering meanwhile; a standby channel the verdict promotes has long settled.
+RECOVERED_SETTLE_S = 1.0
 TWIN_SPACING_CHIPS = 0.1   # the early-late spacing of a legitimate channel with a spoofer within a chip
 TWIN_MEASURE_REACH_CHIPS = JOINT_WITHIN_CHIPS + 0.5   # a twin measured this far off has left the two-path tracker
 BEAT_CHECK_S = 0.25
@@ -323,7 +328,8 @@ class DefendedReceiver:
             checked = (trusted(fix.raim) and fix.n_sats - 4 >= g.d["min_redundancy"]
                        and fix.residual_rms_m < MAX_RECOVERED_RESIDUAL_M)
             unbiased = not set(fix.prns) & self.inner.distrusted_prns
-            state = "recovered" if checked and unbiased and all(g.resolved(p) for p in fix.prns) else "recovering"
+            state = "recovered" if checked and unbiased and self._settled(fix.prns) \
+                and all(g.resolved(p) for p in fix.prns) else "recovering"
             if state == "recovered" and rectified:
                 state = "rectified"
         if g.alarm_t_s is None or state in TRUSTED_STATES:
@@ -335,6 +341,11 @@ class DefendedReceiver:
                                  state=state)
         if self.on_fix is not None:
             self.on_fix(self.clock.check(replace(fix, state=state), self._unvouched_ns(fix, state)))
+
+    def _settled(self, prns) -> bool:
+        """Whether every channel of these PRNs has tracked RECOVERED_SETTLE_S past its pull-in."""
+        channels = [self.inner.channels.get(p) for p in prns]
+        return all(ch is None or ch.ms >= ch.cfg.pull_in_ms + RECOVERED_SETTLE_S * 1e3 for ch in channels)
 
     def _unvouched_ns(self, fix: Fix, state: str) -> float:
         """How far a fix's ranges may all be off together by what the defence has not resolved (its time's share,
