@@ -277,17 +277,26 @@ def slow_vehicle(monkeypatch):
     v.close()
 
 
+def _without_gps(v, port) -> tuple[Pilot, object]:
+    """The vehicle's GPS taken away, a pilot on it prepared and a maneuver drawn for it (the pilot to close)."""
+    v.gps_fix_type = 1
+    pilot = Pilot(f"udpout:127.0.0.1:{port}", timeout_s=10)
+    try:
+        status = pilot.prepare()
+    except BaseException:
+        pilot.close()
+        raise
+    return pilot, draw(ManeuverLimits(), track_heading_rad=status.track_heading_rad,
+                       altitude_m=status.height_above_home_m, rng=random.Random(8))
+
+
 def test_without_gps_a_vehicle_that_ignores_the_attitude_targets_aborts_the_maneuver(slow_vehicle):
     """In GUIDED_NOGPS the autopilot is asked for attitudes (the velocity loop is the flight side's own, and its lag
     is no disobedience: on ArduCopter SITL it aborted three maneuvers of one flight): a vehicle that holds level
     whatever it is asked is caught by its reported attitude."""
     v, port = slow_vehicle
-    pilot = Pilot(f"udpout:127.0.0.1:{port}", timeout_s=10)
-    v.gps_fix_type = 1
+    pilot, maneuver = _without_gps(v, port)
     try:
-        status = pilot.prepare()
-        maneuver = draw(ManeuverLimits(), track_heading_rad=status.track_heading_rad,
-                        altitude_m=status.height_above_home_m, rng=random.Random(8))
         v._attitude = lambda msg: None   # taken, obeyed by nothing: it holds level
         with pytest.raises(ManeuverAborted, match="deg off the attitude targets"):
             pilot.fly(maneuver)
@@ -305,12 +314,8 @@ def test_without_gps_the_maneuver_is_flown_on_attitude_targets_and_the_mode_give
     off its own trajectory by ~1 m in 16 s at 50 Hz even without errors, a second-order error of its 50 Hz steps
     that shrinks 16x at 200 Hz)."""
     v, port = slow_vehicle
-    pilot = Pilot(f"udpout:127.0.0.1:{port}", timeout_s=10)
-    v.gps_fix_type = 1
+    pilot, maneuver = _without_gps(v, port)
     try:
-        status = pilot.prepare()
-        maneuver = draw(ManeuverLimits(), track_heading_rad=status.track_heading_rad,
-                        altitude_m=status.height_above_home_m, rng=random.Random(8))
         flown = pilot.fly(maneuver)
         assert flown.without_gps and v.attitude_targets > 100 and v.setpoints == 0
         assert flown.ins_age_s == 0.0 and flown.bound_without_gps, "a hover without GPS: the looser bound"
