@@ -99,7 +99,7 @@ def test_a_twin_close_under_a_much_stronger_spoofer_is_found_by_the_longer_looks
 
 
 def test_without_the_fit_that_close_twin_is_not_found(close_samples, monkeypatch):
-    monkeypatch.setattr(guard_module.SpoofGuard, "_deep_fit", lambda self, window, deep, seen: [])
+    monkeypatch.setattr(guard_module.SpoofGuard, "_deep_fit", lambda self, window, deep, beside: [])
     alarms = _alarms(_guard_over(close_samples))
     assert 5 in alarms and 11 not in alarms
 

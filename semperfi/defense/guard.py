@@ -454,9 +454,9 @@ class SpoofGuard:
             grid = DopplerGrid(caf.best.doppler_hz, DEEP_SPAN_HZ, DEEP_STEP_HZ)
             deep = acquire(window, self.fs_hz, [prn], grid, self.if_hz, DEEP_COHERENT_MS, DEEP_NONCOHERENT,
                            a["pfa"], EXAMINE_MAX_PEAKS, excise=True, tail_threshold=True)[prn]
-            seen = {**in_units_of(deep, cafs), prn: deep}
-            pairs = auxiliary_peaks(deep, seen, self.detector.cfg, self.fs_hz, block_s=DEEP_CROSS_TALK_BLOCK_S) \
-                or self._deep_fit(window, deep, seen)
+            beside = {**in_units_of(deep, cafs), prn: deep}
+            pairs = auxiliary_peaks(deep, beside, self.detector.cfg, self.fs_hz, block_s=DEEP_CROSS_TALK_BLOCK_S) \
+                or self._deep_fit(window, deep, beside)
             offsets = [chips_offset(p.auxiliary.code_phase_chips, p.main.code_phase_chips) for p in pairs]
             again = [p for p, o in zip(pairs, offsets)
                      if any(abs(o - seen) < TWIN_MATCH_CHIPS for seen in self._deep_seen.get(prn, []))]
@@ -470,18 +470,18 @@ class SpoofGuard:
                 self._on_alarm(Alarm(t_s, prn, pair, None), t_s)
         self._looked = looked
 
-    def _deep_fit(self, window: np.ndarray, deep, seen: dict) -> list:
+    def _deep_fit(self, window: np.ndarray, deep, beside: dict) -> list:
         """A twin too close under its spoofer's peak for the longer look's CAF to show it apart, from the two-path
         fit over that look's samples (GPS-SDR-SIM, path loss, +15 dB, 500 m: a twin 14.6 dB under its spoofer 1 chip
         off, under the fit's regular floor and at 1-3 detection thresholds in the CAF beside the spoofer's sidelobes,
         so that spoofer went through `clean` for the whole minute, 320 m off)."""
         cfg = self.detector.cfg
         main = deep.best
-        if main is None or main.cn0_dbhz < DEEP_FIT_MIN_CN0_DBHZ or not examinable(main, deep, seen, cfg, self.fs_hz,
+        if main is None or main.cn0_dbhz < DEEP_FIT_MIN_CN0_DBHZ or not examinable(main, deep, beside, cfg, self.fs_hz,
                                                                                     DEEP_CROSS_TALK_BLOCK_S):
             return []
         pair = hidden_pair(window, self.fs_hz, self.if_hz, main, cfg, deep=True)
-        if pair is None or is_cross_talk(pair.auxiliary, deep, seen, cfg, self.fs_hz, block_s=TWO_PATH_BLOCK_S):
+        if pair is None or is_cross_talk(pair.auxiliary, deep, beside, cfg, self.fs_hz, block_s=TWO_PATH_BLOCK_S):
             return []
         return [pair]
 
