@@ -496,4 +496,5 @@ def test_a_fix_back_within_the_outage_time_of_the_vehicle_is_no_outage(slow_vehi
         waited_s = v.t_s - t0
     finally:
         pilot.close()
-    assert OUTAGE_S <= waited_s < OUTAGE_S + 1.0, waited_s
+    # vehicle time is k / PHYSICS_HZ: the difference of two such times is OUTAGE_S within rounding (1.4999999999999996)
+    assert OUTAGE_S - 1e-9 <= waited_s < OUTAGE_S + 1.0, waited_s
