@@ -12,9 +12,9 @@ from semperfi.sim.scenario import load_scenario
 needs_gnss_sdr = pytest.mark.skipif(shutil.which("gnss-sdr") is None,
                                     reason="gnss-sdr is not on PATH (scripts/crosscheck-gnss-sdr installs it)")
 FS = 2e6
-# Subframe 1 begins 3 s into the file, so GNSS-SDR has its ephemerides about 21 s in; a channel it starts late
-# waits a whole frame (30 s) for the next subframe 1, hence 55 s.
-COMMON = [f"signal.fs_hz={FS}", "time.duration_s=55.0", 'time.start="2022-01-01T00:00:27"']
+# Subframe 1 begins 16 s into the file, after every channel has found its bit and frame sync (begun 3 s in, GNSS-SDR
+# missed it on most channels and waited a whole frame: 55 s were needed); its ephemerides are complete 34 s in
+COMMON = [f"signal.fs_hz={FS}", "time.duration_s=42.0", 'time.start="2022-01-01T00:00:14"']
 
 
 def _run(tmp_path, name, brdc_path, *sets):

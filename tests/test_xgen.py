@@ -63,7 +63,9 @@ def test_a_synchronized_attack_from_another_generator_is_recovered(tmp_path, brd
 def test_a_weaker_attacker_from_another_generator_is_identified_by_the_maneuver(tmp_path, brdc_path):
     """GPS-SDR-SIM renders the receiver along a hover-maneuver-hover motion file and a static spoofer 1 km east, 3 dB
     weaker, synchronized, on from the first sample; `run --imu` gets the INS-only track with a MEMS unit's drift.
-    Without the maneuver the stronger-peak guess would cancel the legitimate signals."""
+    Without the maneuver the stronger-peak guess would cancel the legitimate signals: the maneuver decides peak by
+    peak, and the PRNs it cannot decide (too little line-of-sight motion, twins too close to follow apart) take the
+    power relation it established on the others."""
     from semperfi.eval.flightpath import hover_maneuver_hover, ins_track, write_motion_csv
     from semperfi.flight.deadreckoning import write_track_csv
     place = PLACES["boston"]
@@ -76,6 +78,14 @@ def test_a_weaker_attacker_from_another_generator_is_identified_by_the_maneuver(
     assert r["called_good_but_wrong"] == 0, r
     assert r["recovered"] > 0 and r["last_state"] == "recovered", r
     assert r["last_mean_m"] < 5.0, r
+    # decided peak by peak (the PRNs it cannot decide take the power relation it established), never guessed, and
+    # nothing cancelled before the maneuver has ended
+    events = [json.loads(line) for line in open(tmp_path / f"{case.tag}-full-imu" / "events.jsonl")]
+    starts = [e for e in events if e["event"] == "cancellation_start"]
+    assert len([e for e in starts if e["reason"].startswith("maneuver")]) >= 3, starts
+    assert not any(e["guessed"] for e in starts), starts
+    maneuver_end_s = t[np.flatnonzero(np.any(np.diff(ned, axis=0) != 0.0, axis=1))][-1]
+    assert all(e["t_rx_s"] >= maneuver_end_s for e in starts), (maneuver_end_s, starts)
 
 
 def test_a_far_stronger_attacker_from_another_generator_is_recovered(tmp_path, brdc_path):
