@@ -15,7 +15,7 @@ pytest.importorskip("pymavlink", reason="pymavlink is not installed")
 
 @pytest.fixture(scope="module")
 def loop(tmp_path_factory, brdc_path):
-    return run_closed_loop(tmp_path_factory.mktemp("loop"), 56.0, nav_path=str(brdc_path),
+    return run_closed_loop(tmp_path_factory.mktemp("loop"), 46.0, nav_path=str(brdc_path),
                            sets=['time.start="2022-01-01T00:00:27"'], maneuver_seed=1)
 
 

@@ -22,7 +22,7 @@ def test_a_time_push_aligned_from_the_first_sample_keeps_the_fix_from_the_clean_
 
     from semperfi.eval.grid import Cell, run_cell
     cell = Cell("push", "boston", "2022/01/01,00:00:00", 0.0, 10.0, 30.0, at_s=20.0, rate=25.0)
-    clean, attacked = run_cell(cell, brdc_path, tmp_path, keep=False)
+    clean, attacked = run_cell(cell, brdc_path, tmp_path, clean_until_first_fix=True)
     print(attacked)
     assert attacked["crash"] is False and attacked["error"] is None, attacked
     assert attacked["first_fix_s"] <= clean["first_fix_s"] + 0.15, (clean["first_fix_s"], attacked["first_fix_s"])
@@ -48,7 +48,7 @@ def test_a_time_push_starting_before_the_first_fix_keeps_the_position_and_calls_
 
     from semperfi.eval.grid import Cell, run_cell
     cell = Cell("push", "boston", "2022/01/01,01:47:21", 0.0, 5.0, 20.0, at_s=8.0, rate=25.0, fs_hz=2e6)
-    clean, attacked = run_cell(cell, brdc_path, tmp_path, keep=False)
+    clean, attacked = run_cell(cell, brdc_path, tmp_path, clean_until_first_fix=True)
     print(attacked)
     assert attacked["crash"] is False and attacked["error"] is None, attacked
     assert attacked["first_fix_s"] is not None and attacked["first_fix_s"] <= clean["first_fix_s"] + 6.5, attacked

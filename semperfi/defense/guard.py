@@ -83,7 +83,7 @@ class _LookPlan:
     full: bool                # every PRN searched
     prns: tuple
     screen: bool              # a screen first (quiet or settled), looked at in full when it sees anything
-    windows_hz: dict | None   # a screen's Doppler window of each PRN
+    windows_hz: dict | None   # a screen's Doppler window of each PRN (a screen), or an attack's look's
     quiet: bool               # nothing seen of an attack
     carried: dict | None      # a quiet sky's fits-only look: the last search's CAFs, carried to this window
     sensitive: bool
@@ -308,6 +308,20 @@ class SpoofGuard:
         last = {prn: self._last_cafs[prn].best for prn in prns if prn in self._last_cafs}
         return {prn: (p.doppler_hz - QUIET_SPAN_HZ, p.doppler_hz + QUIET_SPAN_HZ) for prn, p in last.items() if p}
 
+    def _around_peaks(self, prns) -> dict[int, tuple[float, float]]:
+        """An attack's look (between full searches) at each PRN the last search saw: QUIET_SPAN_HZ about its main
+        peak and the second peaks paired with it (a third of the grid's rows: the search was most of a look's cost
+        under attack). A peak further off shows at the full searches, every full_search_every_s."""
+        out = {}
+        for prn in prns:
+            caf = self._last_cafs.get(prn)
+            if caf is None or caf.best is None:
+                continue
+            pairs = auxiliary_peaks(caf, self._last_cafs, self.detector.cfg, self.fs_hz)
+            dopplers = [caf.best.doppler_hz] + [pair.auxiliary.doppler_hz for pair in pairs]
+            out[prn] = (min(dopplers) - QUIET_SPAN_HZ, max(dopplers) + QUIET_SPAN_HZ)
+        return out
+
     def absent_now(self) -> frozenset[int]:
         """The PRNs the latest full search (every PRN, 20-40 ms: more sensitive than the chain's) found nothing of,
         while it is recent enough to stand for the chain's own cold search of the same samples."""
@@ -362,8 +376,8 @@ class SpoofGuard:
         calm = not (self.detector.sensitive or self.detector.pending()) and bool(
             self.present_prns or self._seen >= self._startup_samples)
         screen = calm or self._settled()
-        return _LookPlan(x, first, self._seen, full, prns, screen,
-                         None if full or not screen else self._around_last(prns), quiet, carried,
+        windows = None if full else self._around_last(prns) if screen else self._around_peaks(prns)
+        return _LookPlan(x, first, self._seen, full, prns, screen, windows, quiet, carried,
                          self.detector.sensitive, frozenset(self.detector.alarmed))
 
     def _compute(self, plan: _LookPlan, ahead: bool = True) -> tuple[dict, dict]:
@@ -376,7 +390,9 @@ class SpoofGuard:
             if plan.screen:
                 cafs = self._acquire(plan.x, plan.prns, 0.0, span_hz, QUIET_NONCOHERENT,
                                      windows_hz=plan.windows_hz, most_columns=QUIET_COLUMNS)
-            if cafs is None or self._worth_a_full_look(cafs):
+            if cafs is None:
+                cafs = self._acquire(plan.x, plan.prns, 0.0, span_hz, EXAMINE_NONCOHERENT, windows_hz=plan.windows_hz)
+            elif self._worth_a_full_look(cafs):
                 cafs = self._acquire(plan.x, plan.prns, 0.0, span_hz, EXAMINE_NONCOHERENT)
         samples = self._fitted(plan.x, plan.sensitive and plan.carried is None)
         return cafs, self.detector.fits(cafs, samples, plan.sensitive, plan.alarmed) if ahead else {}

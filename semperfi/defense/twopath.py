@@ -56,55 +56,44 @@ def _chip_and_rest(units, sub, inv_sub):
     return chip, rest
 
 
-@njit(inline="always")
-def _add_replicas(d_re, d_im, top, w_re, w_im, sub, inv_sub, n_cross, first_at, code_pad):
-    """w times each offset's replica chip, into d as differences from one offset to the next: a sample at top
-    (1/sub chips, past the first offset) meets code chip `chip` at the first offset, and the next chip at every
-    offset sub - rest units further on -- n_cross crossings over the span, whatever the number of offsets."""
-    chip, rest = _chip_and_rest(top, sub, inv_sub)
-    s = code_pad[chip + PAD_CHIPS]
-    d_re[0] += w_re * s
-    d_im[0] += w_im * s
-    for q in range(n_cross):
-        step = code_pad[chip + q + 1 + PAD_CHIPS] - code_pad[chip + q + PAD_CHIPS]
-        i = first_at[sub - rest + q * sub]
-        d_re[i] += w_re * step
-        d_im[i] += w_im * step
-
-
 @njit(cache=True, nogil=True, fastmath=True)
-def _profile_kernel(samples, block_carrier, carrier, code_phase_chips, chips_per_sample, sub, units, first_at,
-                    code_pad, n_blocks, k):
-    """The wiped blocks (k x 2 n_blocks: each block's real and imaginary parts), the first block's replicas at every
-    offset (offsets x k, +/-1), each block's correction, and the replicas' Gram matrix: y = replicas @ wiped +
-    correction, one matrix product (BLAS) for the bulk of the work.
+def _profile_kernel(samples, block_carrier, carrier, code_phase_chips, chips_per_sample, sub, units, code_pad,
+                    n_blocks, k):
+    """Each block's correlations y[i, b] with the code at every offset (units[i] / sub chips, sorted), and the
+    replicas' Gram matrix over block 0.
 
-    The code slides under the blocks only by its Doppler (a few thousandths of a chip a block), so block b's samples
-    meet the same code chips as block 0's but for the few whose 1/sub-chip position moved: those are added again
-    with their own replicas and taken off with block 0's, each as a handful of differences from one offset to the
-    next (_add_replicas) rather than a sum over every offset. Offsets are units[i] / sub chips, sorted; first_at[v]
-    is the first offset at least v units past the first."""
+    A block's wiped samples are summed into bins of 1/sub chip by their code position. An offset of q whole chips
+    and rho units meets chip c + q in bin (c, r) for r < sub - rho and chip c + q + 1 above, so with P[c, m] the
+    sum of chip c's first m bins and T[c] all of them,
+
+        y = sum_c (code[c+q] - code[c+q+1]) P[c, sub - rho] + code[c+q+1] T[c]
+
+    a pass over the samples and a few sums per chip and offset, whatever the rate: at 10 MSa/s a third of the time
+    of the product of every offset's replica with every sample, which this replaced."""
     n_off = units.size
     n_sub = CA_CODE_LENGTH_CHIPS * sub
-    u0 = units[0]
-    n_cross = (units[n_off - 1] - u0) // sub + 1
-    inv_sub = 1.0 / sub
-    wiped = np.empty((k, 2 * n_blocks), dtype=np.float32)
-    correction = np.zeros((n_off, n_blocks), dtype=np.complex128)
-    d_re, d_im = np.empty(n_off + 1), np.empty(n_off + 1)   # the last slot takes crossings past the last offset
+    q = np.empty(n_off, dtype=np.int64)
+    m = np.empty(n_off, dtype=np.int64)
+    for i in range(n_off):
+        q[i] = units[i] // sub                      # floored, as the chips are
+        m[i] = sub - (units[i] - q[i] * sub)
+    q_lo = q[0]
+    n_q = q[n_off - 1] - q_lo + 1
+    y = np.empty((n_off, n_blocks), dtype=np.complex128)
+    w_re, w_im = np.zeros(n_sub), np.zeros(n_sub)
+    p_re, p_im = np.empty(sub + 1), np.empty(sub + 1)
+    d_re, d_im = np.empty((n_q, sub + 1)), np.empty((n_q, sub + 1))
+    s_re, s_im = np.empty(n_q), np.empty(n_q)
     fine0 = np.empty(k, dtype=np.int64)
     for b in range(n_blocks):
-        d_re[:] = 0.0
-        d_im[:] = 0.0
-        moved = False
+        w_re[:] = 0.0
+        w_im[:] = 0.0
         turn = block_carrier[b]
         # whole code periods taken off by subtraction instead of a remainder per sample: an integer times the period
         # off the position is exact in floating point, as the remainder is
         wraps = np.floor((code_phase_chips + b * k * chips_per_sample) / CA_CODE_LENGTH_CHIPS)
         for t in range(k):
             w = samples[b * k + t] * carrier[t] * turn
-            wiped[t, 2 * b] = w.real
-            wiped[t, 2 * b + 1] = w.imag
             pos = (code_phase_chips + (b * k + t) * chips_per_sample) - wraps * CA_CODE_LENGTH_CHIPS
             if pos >= CA_CODE_LENGTH_CHIPS:
                 wraps += 1.0
@@ -112,32 +101,51 @@ def _profile_kernel(samples, block_carrier, carrier, code_phase_chips, chips_per
             fine = min(np.int64(pos * sub), n_sub - 1)
             if b == 0:
                 fine0[t] = fine
-            elif fine != fine0[t]:
-                moved = True
-                _add_replicas(d_re, d_im, fine + u0, w.real, w.imag, sub, inv_sub, n_cross, first_at, code_pad)
-                _add_replicas(d_re, d_im, fine0[t] + u0, -w.real, -w.imag, sub, inv_sub, n_cross, first_at,
-                              code_pad)
-        if moved:
-            acc_re, acc_im = 0.0, 0.0
-            for i in range(n_off):
-                acc_re += d_re[i]
-                acc_im += d_im[i]
-                correction[i, b] = acc_re + 1j * acc_im
-    # block 0's replicas: the chip of offset i is the first offset's plus (rest + units[i] - u0) // sub
+            w_re[fine] += w.real
+            w_im[fine] += w.imag
+        d_re[:, :] = 0.0
+        d_im[:, :] = 0.0
+        s_re[:] = 0.0
+        s_im[:] = 0.0
+        for c in range(CA_CODE_LENGTH_CHIPS):
+            a_re, a_im = 0.0, 0.0
+            p_re[0], p_im[0] = 0.0, 0.0
+            for r in range(sub):
+                a_re += w_re[c * sub + r]
+                a_im += w_im[c * sub + r]
+                p_re[r + 1], p_im[r + 1] = a_re, a_im
+            for j in range(n_q):
+                after = code_pad[c + q_lo + j + 1 + PAD_CHIPS]
+                s_re[j] += after * a_re
+                s_im[j] += after * a_im
+                step = code_pad[c + q_lo + j + PAD_CHIPS] - after
+                if step != 0.0:                      # half the chips: the code does not change there
+                    for mm in range(1, sub + 1):
+                        d_re[j, mm] += step * p_re[mm]
+                        d_im[j, mm] += step * p_im[mm]
+        for i in range(n_off):
+            j = q[i] - q_lo
+            y[i, b] = complex(d_re[j, m[i]] + s_re[j], d_im[j, m[i]] + s_im[j])
+    return y, _gram(fine0, units, sub, code_pad)
+
+
+@njit(cache=True, nogil=True)
+def _gram(fine, units, sub, code_pad):
+    """The replicas' Gram matrix over one block's samples at these 1/sub-chip positions, exact (sums of +/-1) and
+    without a product over the samples: offset i meets chip `chip + ahead[rest, i]`, so gram[i, j] sums
+    pairs[rest, ahead[rest, i], ahead[rest, j]] over the rests, where pairs[r, a, b] sums code[chip + a]
+    code[chip + b] over the samples with that rest."""
+    n_off = units.size
+    u0 = units[0]
+    n_ahead = (units[n_off - 1] - u0) // sub + 2
     ahead = np.empty((sub, n_off), dtype=np.int64)
     for r in range(sub):
         for i in range(n_off):
             ahead[r, i] = (r + units[i] - u0) // sub
-    # and their Gram matrix, exact (sums of +/-1) and without a product over the samples: offset i meets chip
-    # `chip + ahead[rest, i]`, so gram[i, j] sums pairs[rest, ahead[rest, i], ahead[rest, j]] over the rests, where
-    # pairs[r, a, b] sums code[chip + a] code[chip + b] over the samples with that rest
-    n_ahead = n_cross + 1
-    first = np.empty((n_off, k), dtype=np.float32)
     pairs = np.zeros((sub, n_ahead, n_ahead))
-    for t in range(k):
-        chip, rest = _chip_and_rest(fine0[t] + u0, sub, inv_sub)
-        for i in range(n_off):
-            first[i, t] = code_pad[chip + ahead[rest, i] + PAD_CHIPS]
+    inv_sub = 1.0 / sub
+    for t in range(fine.size):
+        chip, rest = _chip_and_rest(fine[t] + u0, sub, inv_sub)
         for a in range(n_ahead):
             c_a = code_pad[chip + a + PAD_CHIPS]
             for b in range(a, n_ahead):
@@ -151,7 +159,7 @@ def _profile_kernel(samples, block_carrier, carrier, code_phase_chips, chips_per
                 g += pairs[r, a, b]
             gram[i, j] = g
             gram[j, i] = g
-    return wiped, first, correction, gram
+    return gram
 
 
 MAX_SUB = 1000   # offsets on a grid finer than 1/MAX_SUB chip are refused
@@ -159,17 +167,14 @@ MAX_SUB = 1000   # offsets on a grid finer than 1/MAX_SUB chip are refused
 
 @functools.lru_cache(maxsize=16)
 def _grid(offsets_chips: tuple) -> tuple:
-    """The offsets' grid (every offset a whole number of 1/sub chips), their order, each in units of 1/sub chip
-    (sorted), and first_at[v]: the first of them at least v units past the first (cached: every fit asks for the
-    same offsets)."""
+    """The offsets' grid (every offset a whole number of 1/sub chips), their order, and each in units of 1/sub chip
+    (sorted) (cached: every fit asks for the same offsets)."""
     offsets = np.asarray(offsets_chips, dtype=np.float64)
     sub = next((r for r in range(1, MAX_SUB + 1) if np.allclose(offsets * r, np.round(offsets * r), atol=1e-6)), None)
     if sub is None:
         raise ValueError(f"delay offsets must lie on a grid of 1/{MAX_SUB} chip or coarser")
     order = np.argsort(offsets, kind="stable")
-    units = np.round(offsets[order] * sub).astype(np.int64)
-    first_at = np.searchsorted(units - units[0], np.arange(units[-1] - units[0] + sub + 1), side="left")
-    return sub, order, units, first_at.astype(np.int64)
+    return sub, order, np.round(offsets[order] * sub).astype(np.int64)
 
 
 @functools.lru_cache(maxsize=64)
@@ -209,13 +214,10 @@ def delay_profile(samples, fs_hz, prn, code_phase_chips, doppler_hz, if_hz, offs
     block_carrier, carrier = _carrier(fs_hz, doppler_hz, if_hz, n_blocks)
     code = float_code(prn)
     code_pad = np.concatenate([code[-PAD_CHIPS:], code, code[:PAD_CHIPS]])
-    sub, order, units, first_at = _grid(tuple(np.asarray(offsets_chips, dtype=np.float64)))
-    wiped, first, correction, gram = _profile_kernel(
-        np.ascontiguousarray(samples[:k * n_blocks]), block_carrier, carrier, float(code_phase_chips),
-        _chips_per_sample(fs_hz, doppler_hz), sub, units, first_at, code_pad, n_blocks, k)
-    # products of +/-1 with single-precision samples, summed by BLAS in single precision: errors of a few 1e-7 of
-    # the largest correlation, far below the noise in it
-    y = (first @ wiped).astype(np.float64).view(np.complex128) + correction
+    sub, order, units = _grid(tuple(np.asarray(offsets_chips, dtype=np.float64)))
+    y, gram = _profile_kernel(np.ascontiguousarray(samples[:k * n_blocks]), block_carrier, carrier,
+                              float(code_phase_chips), _chips_per_sample(fs_hz, doppler_hz), sub, units, code_pad,
+                              n_blocks, k)
     back = np.argsort(order)   # the offsets' order as asked
     return y[back], gram[np.ix_(back, back)], k
 
