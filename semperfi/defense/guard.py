@@ -616,7 +616,7 @@ class SpoofGuard:
         else:
             choice = choose(alarm, self.policy, self.policy_prns)
         if choice is not None and choice.guessed and self.attacker_stronger is not None:
-            choice = by_power(alarm, self.attacker_stronger, self._inference) or choice
+            choice = by_power(alarm, self.attacker_stronger, self._inference)
         if choice is not None and choice.guessed and self.continuing is not None:
             pair = (alarm.pair.main, alarm.pair.auxiliary)
             legit = self.continuing(alarm.prn, self._looked[1], tuple(p.code_phase_chips for p in pair))
@@ -634,7 +634,7 @@ class SpoofGuard:
         elif choice is not None and choice.guessed and (stronger := power_relation(self._newcomer_gaps_db)) is not None:
             why = (f"inferred: on the {len(self._newcomer_gaps_db)} PRNs where the attacker's peak appeared after the "
                    f"receiver had the other, it was the {'stronger' if stronger else 'weaker'}")
-            choice = by_power(alarm, stronger, why) or choice
+            choice = by_power(alarm, stronger, why)
         self._start_cancelling(alarm.prn, t_s, choice)
 
     def _retry_maneuver(self, t_s: float) -> None:

@@ -56,15 +56,18 @@ def choose(alarm: Alarm, policy: str, prns: frozenset[int] = frozenset()) -> Cho
 POWER_MARGIN_DB = 2.0   # a pair closer in power than this is not told apart by one look's peak metrics
 
 
-def by_power(alarm: Alarm, attacker_stronger: bool, reason: str) -> Choice | None:
+def by_power(alarm: Alarm, attacker_stronger: bool, reason: str) -> Choice:
     """The attacker's peak by a power relation the maneuver established on other PRNs (not a guess: one
-    transmitter, one relation, and the attacker cannot know in advance which PRNs the maneuver leaves undecided);
-    None when this pair's two peaks are too close in power to apply it."""
+    transmitter, one relation, and the attacker cannot know in advance which PRNs the maneuver leaves undecided).
+    A pair whose two peaks are too close in power for one look's metrics to apply it is still assumed on the
+    relation's side, a guess: the stronger-peak assumption would go against what the maneuver showed (GPS-SDR-SIM,
+    an attacker 3 dB under: a twin 0.4 chip from its spoofer, first seen after the verdict, fitted within 2 dB)."""
     main, aux = alarm.pair.main, alarm.pair.auxiliary
     stronger, weaker = (main, aux) if main.metric >= aux.metric else (aux, main)
-    if gap_db(stronger, weaker) < POWER_MARGIN_DB:
-        return None
-    return Choice(stronger, weaker, False, reason) if attacker_stronger else Choice(weaker, stronger, False, reason)
+    close = gap_db(stronger, weaker) < POWER_MARGIN_DB
+    if close:
+        reason = f"{reason}; assumed so where the pair is within {POWER_MARGIN_DB:g} dB"
+    return Choice(stronger, weaker, close, reason) if attacker_stronger else Choice(weaker, stronger, close, reason)
 
 
 def gap_db(adversarial: Peak, legitimate: Peak) -> float:

@@ -29,6 +29,7 @@ from ..errors import BadInput
 from ..flight import Leg, ManeuverLimits, plan_trajectory, write_track_csv
 from ..iq import build_sigmf_meta, sidecar_path, write_sigmf_meta
 from ..receiver import TRUSTED_STATES
+from ..sim import gaussian
 from .flightpath import MOTION_DT_S, ins_track, write_motion_csv
 from .metrics import Truth, fix_errors, gps_time, read_fixes
 
@@ -331,19 +332,24 @@ def mix(legit: Path, spoof: Path | None, out: Path, case: Case) -> Path:
     read, delay = (scene_reader(a), push_delay(case)) if pushed else (None, None)
     block = 2 * int(round(case.fs_hz * MIX_BLOCK_S))
     start = 2 * int(round(case.spoof_start_s * case.fs_hz))
+    # single precision: int16 scenes, even +20 dB over, keep a thousandth of a unit before the rounding
+    gain32, sigma32, scale32 = np.float32(gain), np.float32(sigma), np.float32(OUTPUT_SCALE)
     with open(out, "wb") as f:
         for i in range(0, a.size, block):
-            x = a[i:i + block].astype(np.float64)
+            x = a[i:i + block].astype(np.float32)
             if (b is not None or pushed) and i + x.size > start:
                 if pushed:
                     z = delayed_scene(read, i // 2, x.size // 2, case.fs_hz, delay)
-                    s = np.column_stack([z.real, z.imag]).ravel()
+                    s = np.column_stack([z.real, z.imag]).ravel().astype(np.float32)
                 else:
-                    s = b[i:i + block].astype(np.float64)
+                    s = b[i:i + block].astype(np.float32)
                 s[:max(0, start - i)] = 0.0
-                x += gain * s
-            x += rng.standard_normal(x.size) * sigma
-            np.multiply(x, OUTPUT_SCALE, out=x)       # in place: np.round(x * s) takes 20 times as long
+                s *= gain32
+                x += s
+            noise = gaussian(rng, x.size)
+            noise *= sigma32
+            x += noise
+            x *= scale32                              # in place: np.round(x * s) takes 20 times as long
             np.rint(x, out=x)
             np.clip(x, -32767, 32767, out=x)
             f.write(x.astype("<i2").tobytes())

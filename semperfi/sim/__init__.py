@@ -6,6 +6,7 @@ from ..face import lazy_face
 __all__, __getattr__, __dir__ = lazy_face(__name__, {
     "constellation": ("build_constellation",),
     "mavlink_vehicle": ("MavlinkVehicle",),
+    "noise": ("gaussian",),
     "run": ("simulate_to_file",),
     "scenario": ("load_scenario",),
     "simulate": ("CHUNK_S", "Simulator", "make_live_simulator"),
