@@ -10,6 +10,7 @@ Its C/N0 against the reference says how much of the legitimate signal the cancel
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,7 +32,9 @@ class Ranges:
 def read_ranges(rinex_path: str | Path) -> dict[int, Ranges]:
     """C1C and S1C per GPS PRN from a RINEX observation file (ours or GNSS-SDR's), read with georinex."""
     import georinex
-    obs = georinex.load(str(rinex_path), use="G", meas=["C1C", "S1C"], fast=False)
+    with warnings.catch_warnings():   # georinex's xarray.concat warns of a future default per epoch: not ours to act on
+        warnings.simplefilter("ignore", FutureWarning)
+        obs = georinex.load(str(rinex_path), use="G", meas=["C1C", "S1C"], fast=False)
     if obs.time.size == 0:             # a receiver that never had an observation writes only the header
         return {}
     t_s = (obs.time.values - np.datetime64(GPS_EPOCH.replace(tzinfo=None))) / np.timedelta64(1, "ns") * 1e-9
