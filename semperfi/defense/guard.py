@@ -303,21 +303,17 @@ class SpoofGuard:
                        self.if_hz, 2, noncoherent, a["pfa"], max(EXAMINE_MAX_PEAKS, a["max_peaks"]),
                        excise=True, keep_power=False, **screen)   # a tone is no satellite, nor a spoofer
 
-    def _around_last(self, prns) -> dict[int, tuple[float, float]]:
-        """A quiet look's Doppler window of each PRN the last look saw (QUIET_SPAN_HZ about its Doppler then)."""
-        last = {prn: self._last_cafs[prn].best for prn in prns if prn in self._last_cafs}
-        return {prn: (p.doppler_hz - QUIET_SPAN_HZ, p.doppler_hz + QUIET_SPAN_HZ) for prn, p in last.items() if p}
-
-    def _around_peaks(self, prns) -> dict[int, tuple[float, float]]:
-        """An attack's look (between full searches) at each PRN the last search saw: QUIET_SPAN_HZ about its main
-        peak and the second peaks paired with it (a third of the grid's rows: the search was most of a look's cost
-        under attack). A peak further off shows at the full searches, every full_search_every_s."""
+    def _around_last(self, prns, with_twins: bool = False) -> dict[int, tuple[float, float]]:
+        """Each PRN's Doppler window from the last search that saw it: QUIET_SPAN_HZ about its main peak (a quiet
+        look's), and with_twins about the second peaks paired with it too (an attack's look between full searches:
+        a third of the grid's rows, the search being most of a look's cost under attack; a peak further off shows
+        at the full searches, every full_search_every_s)."""
         out = {}
         for prn in prns:
             caf = self._last_cafs.get(prn)
             if caf is None or caf.best is None:
                 continue
-            pairs = auxiliary_peaks(caf, self._last_cafs, self.detector.cfg, self.fs_hz)
+            pairs = auxiliary_peaks(caf, self._last_cafs, self.detector.cfg, self.fs_hz) if with_twins else []
             dopplers = [caf.best.doppler_hz] + [pair.auxiliary.doppler_hz for pair in pairs]
             out[prn] = (min(dopplers) - QUIET_SPAN_HZ, max(dopplers) + QUIET_SPAN_HZ)
         return out
@@ -376,7 +372,7 @@ class SpoofGuard:
         calm = not (self.detector.sensitive or self.detector.pending()) and bool(
             self.present_prns or self._seen >= self._startup_samples)
         screen = calm or self._settled()
-        windows = None if full else self._around_last(prns) if screen else self._around_peaks(prns)
+        windows = None if full else self._around_last(prns, with_twins=not screen)
         return _LookPlan(x, first, self._seen, full, prns, screen, windows, quiet, carried,
                          self.detector.sensitive, frozenset(self.detector.alarmed))
 
