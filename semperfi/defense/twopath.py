@@ -68,7 +68,7 @@ def _profile_kernel(samples, block_carrier, carrier, code_phase_chips, chips_per
 
         y = sum_c (code[c+q] - code[c+q+1]) P[c, sub - rho] + code[c+q+1] T[c]
 
-    a pass over the samples and a few sums per chip and offset, whatever the rate: at 10 MSa/s a third of the time
+    a pass over the samples and a few sums per chip and offset, whatever the rate: at 10 MSa/s half the time
     of the product of every offset's replica with every sample, which this replaced."""
     n_off = units.size
     n_sub = CA_CODE_LENGTH_CHIPS * sub
