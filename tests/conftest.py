@@ -1,4 +1,6 @@
 import os
+import shutil
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -20,3 +22,19 @@ def brdc_path() -> Path:
     if not BRDC.is_file():
         pytest.skip(f"{BRDC} not present (the shared data folder sits beside the repository)")
     return BRDC
+
+
+
+def pytest_configure(config):
+    """GPS-SDR-SIM's scenes rendered once for the whole run, both workers (they inherit this process's environment):
+    a longer scene serves a shorter case, and most cross-generator tests share Boston's static scene and its
+    spoofer's. Removed at the end (a run renders gigabytes). Set by the user, the folder is theirs."""
+    from semperfi.eval.xgen import SCENES_ENV
+    if os.environ.get("PYTEST_XDIST_WORKER") or os.environ.get(SCENES_ENV):
+        return
+    os.environ[SCENES_ENV] = config._semperfi_scenes = tempfile.mkdtemp(prefix="semperfi-scenes-")
+
+
+def pytest_unconfigure(config):
+    if getattr(config, "_semperfi_scenes", None):
+        shutil.rmtree(config._semperfi_scenes, ignore_errors=True)

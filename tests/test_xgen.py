@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from semperfi.defense.canceller import caf_amplitude
-from semperfi.eval.xgen import AMPLITUDE, OUTPUT_SCALE, PLACES, Case, gps_sdr_sim_path, prepare, run_case
+from semperfi.eval.xgen import (AMPLITUDE, OUTPUT_SCALE, PLACES, Case, gps_sdr_sim_path, prepare, run_case,
+                                scene_samples, scenes)
 from semperfi.iq import open_iq
 from semperfi.receiver.acquisition import DopplerGrid, acquire
 
@@ -21,9 +22,9 @@ def test_the_mix_puts_gps_sdr_sim_satellites_at_the_c_n0_asked_for(tmp_path, brd
     with the paper's eq. 10, and the mixer's noise measured in the mix: together they set C/N0."""
     case = Case(PLACES["boston"], 0.0, 0.0, duration_s=1.0, attacker=False, cn0_dbhz=45.0)
     mixed = prepare(case, brdc_path, tmp_path)
-    scene = next((tmp_path / "scenes").glob("boston-*.bin"))
     n = int(0.2 * case.fs_hz)
-    clean = np.fromfile(scene, dtype=np.int16, count=2 * n).astype(np.float64).view(np.complex128)
+    scene = scene_samples(scenes(case, brdc_path, tmp_path)[0], case)
+    clean = scene[:2 * n].astype(np.float64).view(np.complex128)
     cafs = acquire(clean[: int(0.01 * case.fs_hz)], case.fs_hz, range(1, 33), DopplerGrid(0.0, 6000.0, 100.0),
                    coherent_ms=5, noncoherent=2)
     found = sorted((c.best for c in cafs.values() if c.best is not None), key=lambda p: -p.metric)[:8]

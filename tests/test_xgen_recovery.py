@@ -7,7 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from semperfi.eval.xgen import OUTPUT_SCALE, PLACES, Case, gps_sdr_sim_path, prepare, run_case
+from semperfi.eval.xgen import (OUTPUT_SCALE, PLACES, Case, gps_sdr_sim_path, prepare, run_case, scene_samples,
+                                scenes)
 from semperfi.iq import open_iq
 
 pytestmark = pytest.mark.skipif(gps_sdr_sim_path() is None,
@@ -139,8 +140,7 @@ def test_the_time_push_is_the_legitimate_scene_itself_delayed_in_code_and_carrie
     rate = 20e-6                                           # 20 us/s: 52 samples a second at 2.6 MSa/s
     case = Case(PLACES["boston"], 0.0, 10.0, duration_s=3.0, cn0_dbhz=70.0, push_ns_per_s=rate * 1e9, push_from_s=1.0)
     mixed = prepare(case, brdc_path, tmp_path)
-    scene = next((tmp_path / "scenes").glob("boston-*.bin"))
-    legit = np.fromfile(scene, dtype=np.int16).astype(np.float64).view(np.complex128)
+    legit = scene_samples(scenes(case, brdc_path, tmp_path)[0], case).astype(np.float64).view(np.complex128)
     spoof = (open_iq(mixed).read(0, legit.size).astype(np.complex128) / OUTPUT_SCALE - legit) / 10 ** 0.5
     d = rate * np.clip(np.arange(legit.size) / case.fs_hz - 1.0, 0.0, None)
     spoof *= np.exp(2j * np.pi * F_L1_HZ * d)

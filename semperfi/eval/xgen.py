@@ -14,7 +14,9 @@ sample for sample, delayed from push_from_s on by a growing d(t), code and carri
 
 from __future__ import annotations
 
+import hashlib
 import math
+import os
 import shutil
 import subprocess
 import time
@@ -66,6 +68,7 @@ PLACES = {p.name: p for p in (Place("boston", 42.3398, -71.0892), Place("sydney"
                               Place("zurich", 47.3769, 8.5417), Place("singapore", 1.3521, 103.8198))}
 OWN_DATE = "2022/01/01,00:00:00"     # the shared ephemeris' own day (brdc0010.22n)
 RINEX_HEADER_END = "END OF HEADER"
+SCENES_ENV = "SEMPERFI_SCENES"       # a folder to keep gps-sdr-sim's scenes in across runs (default: work/scenes)
 
 
 @dataclass(frozen=True)
@@ -167,29 +170,47 @@ def recording_s(case: Case) -> float:
     return (int(round(case.duration_s * 10)) - 1) / 10.0
 
 
+def scene_bytes(case: Case) -> int:
+    """The bytes of a case's scene: gps-sdr-sim's 16-bit IQ over recording_s."""
+    return 4 * int(round(case.fs_hz * 0.1)) * int(round(recording_s(case) * 10))
+
+
+def scene_samples(scene: Path, case: Case) -> np.ndarray:
+    """A scene's interleaved int16 IQ for a case (a memmap): the first scene_bytes of a file that may be longer."""
+    return np.memmap(scene, dtype=np.int16, mode="r", shape=(scene_bytes(case) // 2,))
+
+
 def render(nav_path: str | Path, out: Path, place: Place, case: Case, motion: str = "") -> Path:
     """One gps-sdr-sim scene (16-bit IQ, fixed gain or, with case.path_loss, gps-sdr-sim's path loss and antenna
-    pattern), static at a place or along a motion file; cached: a file of the right size is reused."""
+    pattern), static at a place or along a motion file. Cached: a file at least as long is reused (gps-sdr-sim's
+    output for a longer duration begins with the shorter one's, byte for byte), and a scene is written under another
+    name and then renamed, so that runs sharing the folder never read one half written."""
     exe = gps_sdr_sim_path()
     if exe is None:
         raise XgenError(f"{GPS_SDR_SIM} not found on PATH (build it from github.com/osqzss/gps-sdr-sim: one gcc line)")
-    n_bytes = 4 * int(round(case.fs_hz * 0.1)) * int(round(recording_s(case) * 10))
-    if out.is_file() and out.stat().st_size == n_bytes:
+    if out.is_file() and out.stat().st_size >= scene_bytes(case):
         return out
     # gps-sdr-sim keeps file names in 100-character buffers: it runs in the output's folder, on short names
-    nav = out.parent / Path(nav_path).name
-    if not nav.is_file():
-        shutil.copyfile(nav_path, nav)
+    tag = f"{os.getpid()}-{time.monotonic_ns()}"
+    nav = out.parent / f"{Path(nav_path).name}.{tag}"
+    shutil.copyfile(nav_path, nav)
+    track = out.parent / f"motion.{tag}.csv"
     if motion:
-        shutil.copyfile(motion, out.parent / "motion.csv")
-    where = ["-u", "motion.csv"] if motion else ["-l", f"{place.lat_deg:.9f},{place.lon_deg:.9f},{place.height_m:.3f}"]
+        shutil.copyfile(motion, track)
+    part = out.parent / f"{out.stem}.{tag}.part"
+    where = ["-u", track.name] if motion else ["-l", f"{place.lat_deg:.9f},{place.lon_deg:.9f},{place.height_m:.3f}"]
     args = [exe, "-e", nav.name, *where,
             "-s", f"{case.fs_hz:.0f}", "-d", f"{case.duration_s:g}", "-b", "16", *([] if case.path_loss else ["-p"]),
-            "-o", out.name,
+            "-o", part.name,
             "-t", case.date]
-    r = subprocess.run(args, capture_output=True, text=True, timeout=3600, cwd=out.parent)
-    if r.returncode != 0 or not out.is_file():
-        raise XgenError(f"gps-sdr-sim failed ({r.returncode}): {(r.stderr or r.stdout).strip().splitlines()[-1:]}")
+    try:
+        r = subprocess.run(args, capture_output=True, text=True, timeout=3600, cwd=out.parent)
+        if r.returncode != 0 or not part.is_file():
+            raise XgenError(f"gps-sdr-sim failed ({r.returncode}): {(r.stderr or r.stdout).strip().splitlines()[-1:]}")
+        os.replace(part, out)
+    finally:
+        for f in (nav, track, part):
+            f.unlink(missing_ok=True)
     return out
 
 
@@ -324,11 +345,9 @@ def mix(legit: Path, spoof: Path | None, out: Path, case: Case) -> Path:
     sigma = noise_sigma(case.fs_hz, case.cn0_dbhz)
     gain = 10 ** (case.advantage_db / 20.0)
     rng = np.random.default_rng(case.seed)
-    a = np.memmap(legit, dtype=np.int16, mode="r")
+    a = scene_samples(legit, case)
     pushed = case.attacker and bool(case.push_ns_per_s)
-    b = None if pushed or spoof is None else np.memmap(spoof, dtype=np.int16, mode="r")
-    if b is not None and b.size != a.size:
-        raise XgenError(f"{legit} and {spoof} differ in length")
+    b = None if pushed or spoof is None else scene_samples(spoof, case)
     read, delay = (scene_reader(a), push_delay(case)) if pushed else (None, None)
     block = 2 * int(round(case.fs_hz * MIX_BLOCK_S))
     start = 2 * int(round(case.spoof_start_s * case.fs_hz))
@@ -386,27 +405,39 @@ def score(fixes_csv: Path, place: Place, last_s: float = 10.0, bad_m: float = 10
     return out
 
 
+def scene_dir(work: Path) -> Path:
+    """Where a run's scenes are kept: SCENES_ENV's folder when set (shared by runs, a test suite's workers too), else
+    work/scenes."""
+    d = Path(os.environ.get(SCENES_ENV) or Path(work) / "scenes")
+    d.mkdir(parents=True, exist_ok=True)
+    return d
+
+
 def scenes(case: Case, nav_path: str | Path, work: Path) -> tuple[Path, Path | None]:
     """The legitimate scene of a case and its spoofer's (None: no attacker, or a time push, which the mixer makes
-    from the legitimate scene), rendered once and cached in work/scenes, named by what renders them: place or
-    motion, start time, path loss, rate and length."""
-    cache = work / "scenes"
-    cache.mkdir(parents=True, exist_ok=True)
-    stem = f"{case.date.replace('/', '').replace(',', 'T').replace(':', '')}-{case.fs_hz / 1e6:g}M-{case.duration_s:g}s"
-    stem += "-pl" if case.path_loss else ""
-    trip = f"-{Path(case.motion).stem}" if case.motion else ""
-    legit = render(nav_path, cache / f"{case.place.name}{trip}-{stem}.bin", case.place, case, case.motion)
+    from the legitimate scene), rendered once and cached in scene_dir, named by what renders them: navigation file,
+    place or motion (by its content), start time, path loss and rate; a longer one serves a shorter case."""
+    cache = scene_dir(work)
+    stem = (f"{Path(nav_path).stem}-{case.date.replace('/', '').replace(',', 'T').replace(':', '')}"
+            f"-{case.fs_hz / 1e6:g}M{'-pl' if case.path_loss else ''}")
+    legit = render(nav_path, cache / f"{case.place.name}{_trip(case.motion)}-{stem}.bin", case.place, case,
+                   case.motion)
     spoof = None
     if case.attacker and case.push_ns_per_s:
         pass                          # the legitimate scene itself, delayed in the mixer
     elif case.attacker and case.spoof_motion:
-        spoof = render(nav_path, cache / f"{case.place.name}-{Path(case.spoof_motion).stem}-{stem}.bin", case.place,
+        spoof = render(nav_path, cache / f"{case.place.name}{_trip(case.spoof_motion)}-{stem}.bin", case.place,
                        case, case.spoof_motion)
     elif case.attacker:
         claimed = claimed_place(case)
         spoof = render(nav_path, cache / f"{case.place.name}-{case.offset_m:g}m-{case.azimuth_deg:g}deg-{stem}.bin",
                        claimed, case)
     return legit, spoof
+
+
+def _trip(motion: str) -> str:
+    """A motion file's part of a scene's name: its content's digest (a longer trip is another file, another name)."""
+    return f"-{hashlib.sha256(Path(motion).read_bytes()).hexdigest()[:16]}" if motion else ""
 
 
 def prepare(case: Case, nav_path: str | Path | None, work: Path) -> Path:

@@ -225,7 +225,8 @@ def encode_samples(samples: np.ndarray, fmt: SampleFormat, scale: float = 1.0) -
         if fmt.offset:
             scaled += np.ceil(fmt.offset)   # 0 -> mid-scale (128 for uint8)
         over = (scaled < info.min) | (scaled > info.max)
-        clipped = int(over.reshape(-1, per_sample).any(axis=1).sum())
+        # I or Q over (a strided or: numpy's any over an axis of two takes ten times as long)
+        clipped = int(np.count_nonzero(over[0::2] | over[1::2] if per_sample == 2 else over))
         np.clip(scaled, info.min, info.max, out=scaled)
         return scaled.astype(fmt.item_dtype), clipped
 

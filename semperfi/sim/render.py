@@ -1,7 +1,8 @@
 """Rendering satellite signals into complex baseband: a numba kernel and the numpy reference it must equal.
 
 Within one chunk every signal's code phase and carrier phase are linear in the sample index (the pseudorange is
-interpolated linearly between chunk boundaries), so each sample costs an add, two table reads and a multiply.
+interpolated linearly between chunk boundaries), so each sample costs two table reads and a multiply-add: its
+chip's value (amplitude, code and data bit) and its carrier phasor.
 """
 
 import numpy as np
@@ -14,36 +15,34 @@ CARRIER_TABLE = np.exp(2j * np.pi * (np.arange(1 << CARRIER_TABLE_BITS) + 0.5)
                        / (1 << CARRIER_TABLE_BITS)).astype(np.complex64)
 
 
-@njit(cache=True, nogil=True)
+PHASE_FRACTION_BITS = 40   # the carrier's phase in fixed point: 2^-41 cycle a sample, k * step within int64
+
+
+@njit(cache=True, nogil=True, fastmath=True)
 def _render_kernel(out, codes, bits, chips0, chip_rate, phase0_cycles, phase_rate_cycles, amplitude, table):
-    n_table = table.size
-    period = float(CA_CODE_LENGTH_CHIPS)
+    n = out.size
+    shift = PHASE_FRACTION_BITS - CARRIER_TABLE_BITS
+    mask = (1 << CARRIER_TABLE_BITS) - 1
+    one = float(1 << PHASE_FRACTION_BITS)
     for s in range(chips0.size):
         a = amplitude[s]
         if a == 0.0:
             continue
         code = codes[s]
         b = bits[s]
-        # incremental phases: no division or modulo per sample; the float error over a chunk is ~1e-9 chip
-        epochs = np.int64(chips0[s] // period)
-        c = chips0[s] - epochs * period
-        bit = epochs // 20
-        epoch_in_bit = epochs - bit * 20
-        cr = chip_rate[s]
-        ph = phase0_cycles[s] - np.floor(phase0_cycles[s])
-        pr = phase_rate_cycles[s] - np.floor(phase_rate_cycles[s])   # cycles per sample, folded into [0, 1)
-        for k in range(out.size):
-            out[k] += (a * code[np.int64(c)] * b[bit]) * table[np.int64(ph * n_table)]
-            c += cr
-            if c >= period:
-                c -= period
-                epoch_in_bit += 1
-                if epoch_in_bit == 20:
-                    epoch_in_bit = 0
-                    bit += 1
-            ph += pr
-            if ph >= 1.0:
-                ph -= 1.0
+        # amplitude x code x data bit for every chip the chunk spans: then a sample is a read by its chip's index,
+        # with no branch at code epochs or bit edges (half the time of an incremental loop that tests for them)
+        first = np.int64(chips0[s])
+        span = np.int64(chips0[s] + (n - 1) * chip_rate[s]) - first + 1
+        chip_values = np.empty(span, dtype=np.float32)
+        for j in range(span):
+            chip = first + j
+            chip_values[j] = a * code[chip % CA_CODE_LENGTH_CHIPS] * b[chip // CHIPS_PER_BIT]
+        offset, rate = chips0[s] - first, chip_rate[s]
+        ph = np.int64((phase0_cycles[s] - np.floor(phase0_cycles[s])) * one)
+        step = np.int64(np.round((phase_rate_cycles[s] - np.floor(phase_rate_cycles[s])) * one))
+        for k in range(n):
+            out[k] += chip_values[np.int64(offset + k * rate)] * table[((ph + k * step) >> shift) & mask]
 
 
 def render(out: np.ndarray, codes: np.ndarray, bits: np.ndarray, chips0: np.ndarray, chip_rate: np.ndarray,
