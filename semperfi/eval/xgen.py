@@ -448,6 +448,7 @@ def prepare(case: Case, nav_path: str | Path | None, work: Path) -> Path:
         return render_case(case, nav_path, work / f"{case.tag}.bin")
     if nav_path is None:
         raise XgenError("gps-sdr-sim needs a RINEX navigation file (--nav)")
+    work.mkdir(parents=True, exist_ok=True)
     return mix(*scenes(case, nav_path, work), work / f"{case.tag}.bin", case)
 
 
