@@ -202,3 +202,22 @@ def test_an_attacker_steering_off_the_vehicles_true_track_is_told_by_its_drag():
                    for p in peaks]
         verdicts = identify_peaks(dragged, los, imu)
         assert all(v.decided and v.adversarial and "off the vehicle's INS" in v.reason for v in verdicts), verdicts
+
+
+def test_the_power_relation_decides_a_pair_and_says_where_it_only_assumes():
+    """by_power: a pair clear of the margin is decided on the relation's side, not a guess; a pair within it is
+    still put on the relation's side (never the stronger-peak guess against it), labelled a guess with its gap."""
+    from semperfi.defense.detector import Alarm, PeakPair
+    from semperfi.defense.policy import POWER_MARGIN_DB, by_power
+    from semperfi.receiver import Peak
+
+    def alarm(main_metric, aux_metric):
+        main, aux = Peak(7, 567.23, 1200.0, main_metric, 45.0), Peak(7, 567.98, 1201.0, aux_metric, 42.0)
+        return Alarm(10.0, 7, PeakPair(7, main, aux, 0.75, "two_path"), None)
+    clear = by_power(alarm(400.0, 100.0), attacker_stronger=False, reason="weaker on 8 PRNs")
+    assert clear.adversarial.metric == 100.0 and not clear.guessed and clear.reason == "weaker on 8 PRNs"
+    gap = 10 * np.log10(200.0 / 150.0)
+    assert gap < POWER_MARGIN_DB
+    close = by_power(alarm(200.0, 150.0), attacker_stronger=False, reason="weaker on 8 PRNs")
+    assert close.adversarial.metric == 150.0 and close.legitimate.metric == 200.0 and close.guessed
+    assert f"{gap:.1f} dB apart" in close.reason, close.reason

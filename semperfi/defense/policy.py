@@ -64,9 +64,10 @@ def by_power(alarm: Alarm, attacker_stronger: bool, reason: str) -> Choice:
     an attacker 3 dB under: a twin 0.4 chip from its spoofer, first seen after the verdict, fitted within 2 dB)."""
     main, aux = alarm.pair.main, alarm.pair.auxiliary
     stronger, weaker = (main, aux) if main.metric >= aux.metric else (aux, main)
-    close = gap_db(stronger, weaker) < POWER_MARGIN_DB
+    gap = gap_db(stronger, weaker)
+    close = gap < POWER_MARGIN_DB
     if close:
-        reason = f"{reason}; assumed so where the pair is within {POWER_MARGIN_DB:g} dB"
+        reason = f"{reason}; assumed here, where the two peaks are {gap:.1f} dB apart (within {POWER_MARGIN_DB:g} dB)"
     return Choice(stronger, weaker, close, reason) if attacker_stronger else Choice(weaker, stronger, close, reason)
 
 
