@@ -45,3 +45,14 @@ def test_our_rinex_observations_read_back_per_prn(tmp_path):
     np.testing.assert_allclose(ranges[5].range_m, 2.1e7 + np.arange(5), atol=1e-3)
     np.testing.assert_allclose(ranges[5].t_s, T0_S + 0.1 * np.arange(5), atol=1e-6)
     assert ranges[9].cn0_dbhz[0] == pytest.approx(38.0)
+
+
+def test_the_twin_summary_reads_each_prns_first_stage_from_cleans_report():
+    """What the plug-in grid tabulates per PRN: the first stage's twin as last measured and the median of its
+    attenuation windows, a lower bound counting as its value; a PRN without a twin or a window says None."""
+    from semperfi.eval.plugin import twin_summary
+    report = {7: [{"stage": 0, "attenuation_db": [">=33.8", 20.1, 25.2], "legit_offset_chips": -0.378,
+                   "twin_advantage_db": 10.9}, {"stage": 1, "attenuation_db": [">=16.8"]}],
+              13: [{"stage": 0, "attenuation_db": [], "legit_offset_chips": 1.256}]}
+    assert twin_summary(report) == {"7": {"offset_chips": -0.378, "advantage_db": 10.9, "attenuation_db": 25.2},
+                                    "13": {"offset_chips": 1.256, "advantage_db": None, "attenuation_db": None}}

@@ -146,6 +146,21 @@ def fingerprint(case, nav_path: str | Path, work: Path, gnss_sdr: bool = True, f
     return out
 
 
+def twin_summary(attenuation_db: dict) -> dict[str, dict]:
+    """Per PRN, from `clean`'s attenuation report (CleanSummary.attenuation_db): its first stage's legitimate twin
+    (offset from the spoofer in chips, the spoofer's advantage over it in dB, both as last measured) and the
+    median of its measured attenuation windows (a lower bound counts as its value) -- what sets the residual a
+    receiver behind the filter tracks the twin under."""
+    out = {}
+    for prn, stages in attenuation_db.items():
+        first = stages[0] if stages else {}
+        windows = [float(str(a).lstrip(">=")) for a in first.get("attenuation_db", [])]
+        out[str(prn)] = {"offset_chips": first.get("legit_offset_chips"),
+                         "advantage_db": first.get("twin_advantage_db"),
+                         "attenuation_db": round(float(np.median(windows)), 1) if windows else None}
+    return out
+
+
 def _gnss_sdr_score(fixes, case, last_s: float = 10.0, rate_hz: float = 10.0) -> dict:
     """GNSS-SDR's fixes as xgen.score has ours: how many, the first (seconds into the recording: its GGA times are
     UTC, the case's GPS time), the horizontal error against the truth at each fix's time (the place, or the case's
