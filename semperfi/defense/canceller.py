@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from ..gps import CA_CODE_LENGTH_CHIPS, ca_code, chips_apart, chips_offset
+from ..gps import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, L1_HZ, ca_code, chips_apart, chips_offset
 from ..receiver import (Channel, CodeBank, DopplerGrid, LoopConfig, NEXT_SAMPLE, Peak, acquire, cores, fill_lanes,
                         initial_state, lane_buffer, replica, run_each, sub_block_samples)
 from .twopath_track import TwoPaths, bank_lags, code_correlation, correlator_bank, fit_two_paths
@@ -193,6 +193,7 @@ def rotation_per_period(values: np.ndarray, lag: int = ROTATION_LAG_PERIODS) -> 
 # A legitimate peak closer than this to the spoofer's leaks into the spoofer's amplitude estimate (the code
 # autocorrelation at their offset): both signals are then followed jointly by the two-path tracker.
 JOINT_WITHIN_CHIPS = 1.2
+BACKFILL_COHERENT_WITHIN_CHIPS_S = 0.5   # the DLL's code rate and the carrier's, apart by less: the carrier's
 TWIN_GAIN = 0.5                   # fraction of each buffer's measured twin offset error applied
 REPORT_FIT_EVERY = 4              # buffers: the twin fitted again for the attenuation report (report only)
 # A legitimate signal within BIASED_WITHIN_CHIPS of its spoofer keeps, after cancellation, the spoofer's residual
@@ -366,6 +367,13 @@ class AdversaryTrack:
         2 Hz error: the spoofer 8-10 dB down over the held 0.3 s, 20-30 dB with the turn, as after it; an
         unmodified receiver behind the plug-in filter acquired the spoofers' leftovers there and lost them)."""
         first, _, cp, step, ph, pstep = settled_block
+        # the code's rate from the carrier's where the two agree as a satellite's do: a DLL just settled is still a
+        # tenth of a chip a second off (0.03 chip at the held samples' start, the spoofer 12 dB down there); a
+        # spoofer whose code and carrier part keeps the DLL's rate
+        fs_hz = self.channel.fs_hz
+        coherent = CA_CHIP_RATE_HZ * (1.0 + (pstep * fs_hz - self.channel.if_hz) / L1_HZ) / fs_hz
+        if abs(coherent - step) * fs_hz < BACKFILL_COHERENT_WITHIN_CHIPS_S:
+            step = coherent
         period = CA_CODE_LENGTH_CHIPS / step                 # samples per code period
         epoch0 = first - cp / step                           # fractional sample of the settled block's epoch
         lowest = np.ceil(max(self._start_after, base_sample))
