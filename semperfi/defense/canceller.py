@@ -236,7 +236,6 @@ class AdversaryTrack:
                           min_cn0_dbhz=20.0, dll_narrow_bw_hz=cfg.narrow_dll_bw_hz,
                           narrow_after_ms=cfg.narrow_after_ms, spacing_chips=cfg.spacing_chips)
         st = initial_state(peak.code_phase_chips, peak_sample, peak.doppler_hz, fs_hz, start_after_sample)
-        self._start_after = start_after_sample   # the stage has emitted nothing from here: the backfill's reach
         self.channel = Channel(prn, fs_hz, if_hz, st, loop)
         self._ref = 0j                 # smoothed complex amplitude (bit removed)
         self._legit_ref = 0j           # the same for a legitimate signal within a chip
@@ -252,7 +251,9 @@ class AdversaryTrack:
         self._report_skipped = False   # this buffer's twin was not fitted again: nothing measured
         self.attenuation_db: list[tuple[float, bool]] = []   # per ~1 s window: (dB, only a lower bound)
         self.settled = False
-        self.hold_from: float | None = None   # while the loops settle, samples from here on are held back
+        # while the loops settle, samples from here on (where the track began: the stage has emitted none of them)
+        # are held back; None once settled
+        self.hold_from: float | None = float(start_after_sample)
 
     @property
     def next_sample(self) -> float:
@@ -335,8 +336,6 @@ class AdversaryTrack:
         first_ms, prompts, blocks = self._tracked
         if prompts.size == 0:
             return None
-        if self.hold_from is None and not self.settled:
-            self.hold_from = float(blocks[0, 0])
         settled = first_ms + np.arange(prompts.size) >= self.cfg.pull_in_ms
         if not settled.any():
             return None
@@ -376,7 +375,7 @@ class AdversaryTrack:
             step = coherent
         period = CA_CODE_LENGTH_CHIPS / step                 # samples per code period
         epoch0 = first - cp / step                           # fractional sample of the settled block's epoch
-        lowest = np.ceil(max(self._start_after, base_sample))
+        lowest = np.ceil(max(self.hold_from, base_sample))
         blocks = []
         k = 1
         while np.ceil(epoch0 - (k - 1) * period) > lowest:   # newest first: the smoothing walks back in time
