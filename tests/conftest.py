@@ -24,7 +24,6 @@ def brdc_path() -> Path:
     return BRDC
 
 
-
 def pytest_configure(config):
     """GPS-SDR-SIM's scenes rendered once for the whole run, both workers (they inherit this process's environment):
     a longer scene serves a shorter case, and most cross-generator tests share Boston's static scene and its

@@ -32,8 +32,9 @@ def _render_kernel(out, codes, bits, chips0, chip_rate, phase0_cycles, phase_rat
         b = bits[s]
         # amplitude x code x data bit for every chip the chunk spans: then a sample is a read by its chip's index,
         # with no branch at code epochs or bit edges (half the time of an incremental loop that tests for them)
+        # (one chip to spare: offset + k * rate below may round up across a chip edge that chips0 + k * rate did not)
         first = np.int64(chips0[s])
-        span = np.int64(chips0[s] + (n - 1) * chip_rate[s]) - first + 1
+        span = np.int64(chips0[s] + (n - 1) * chip_rate[s]) - first + 2
         chip_values = np.empty(span, dtype=np.float32)
         for j in range(span):
             chip = first + j
