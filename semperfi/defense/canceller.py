@@ -110,6 +110,19 @@ def residuals(x: np.ndarray, base_sample: int, blocks: np.ndarray, bank: CodeBan
     return beta, power
 
 
+def noise_power(x: np.ndarray, base_sample: int, blocks: np.ndarray) -> float:
+    """The variance of one block's correlation with white noise: the samples' mean power over the blocks (the
+    noise's, at a C/N0 where every signal lies below it) / the samples in a block."""
+    if len(blocks) == 0:
+        return 0.0
+    a = max(0, int(blocks[0, 0]) - base_sample)
+    b = min(x.size, int(blocks[-1, 0] + blocks[-1, 1]) - base_sample)
+    if b <= a:
+        return 0.0
+    part = x[a:b]
+    return float(np.vdot(part, part).real / part.size / np.mean(blocks[:, 1]))
+
+
 def replicas_reference(n_samples: int, base_sample: int, blocks, amplitudes, prn: int) -> np.ndarray:
     """The same replicas with numpy and an exact exponential (slow; for tests)."""
     out = np.zeros(n_samples, dtype=np.complex128)
@@ -295,7 +308,7 @@ class AdversaryTrack:
     def _two_paths(self, x: np.ndarray, base_sample: int, blocks: np.ndarray) -> TwoPaths | None:
         lags = bank_lags(self.legit_offset_chips)
         return fit_two_paths(self.prn, correlator_bank(x, base_sample, blocks, self.channel.bank, lags), lags,
-                             self.legit_offset_chips)
+                             self.legit_offset_chips, noise_power(x, base_sample, blocks))
 
     def _legit_amplitudes(self, raw: np.ndarray, update: bool = True) -> np.ndarray:
         """The legitimate signal's amplitude per code period (in the spoofer's carrier frame), smoothed with its own
