@@ -206,9 +206,15 @@ def rotation_per_period(values: np.ndarray, lag: int = ROTATION_LAG_PERIODS) -> 
 # A legitimate peak closer than this to the spoofer's leaks into the spoofer's amplitude estimate (the code
 # autocorrelation at their offset): both signals are then followed jointly by the two-path tracker.
 JOINT_WITHIN_CHIPS = 1.2
+# Further off, a PRN whose code correlates with itself at +-1 or +-2 chips (63 or 65 / 1023: half the PRNs) still leaks
+# its twin into the spoofer's prompt, a few per cent of it, and the replica then carves that much of the twin out at the
+# spoofer's delay; a receiver with early and late half a chip either side of the twin (GNSS-SDR) is biased by such an
+# anti-echo up to 1.5 chips away (GPS-SDR-SIM, 500 m, +3 and +6 dB: PRN 17's twin 1.27 chip off, 4.5 % leaking,
+# -1.3 to -1.4 m).
+LEAKING_WITHIN_CHIPS = 1.5
+LEAKING_SHARE = 0.01
 BACKFILL_COHERENT_WITHIN_CHIPS_S = 0.5   # the DLL's code rate and the carrier's, apart by less: the carrier's
 TWIN_GAIN = 0.5                   # fraction of each buffer's measured twin offset error applied
-REPORT_FIT_EVERY = 4              # buffers: the twin fitted again for the attenuation report (report only)
 # A legitimate signal within BIASED_WITHIN_CHIPS of its spoofer keeps, after cancellation, the spoofer's residual
 # within BIASED_RESIDUAL_DB of itself when the spoofer is BIASED_TWIN_DB stronger (the residual some
 # ASSUMED_ATTENUATION_DB down), and the closer the twin the worse the spoofer's own estimate: a multipath at under a
@@ -256,12 +262,11 @@ class AdversaryTrack:
                                        # they differ in Doppler
         self._legit_est: np.ndarray | None = None   # its amplitude per code period of the last buffer
         self._twin_lag = 0.0           # and where it was, from the spoofer's replica
+        self._ref_start = 0j           # _ref before this buffer's periods (the refit smooths them again)
         self._lam = 1.0 / cfg.smoothing_ms
         self._acc_signal = self._acc_residual = self._acc_noise = 0.0
         self._acc_n = 0
         self._measure_phase = 0
-        self._report_fits = 0          # buffers with a twin fitted (one in REPORT_FIT_EVERY is fitted again)
-        self._report_skipped = False   # this buffer's twin was not fitted again: nothing measured
         self.attenuation_db: list[tuple[float, bool]] = []   # per ~1 s window: (dB, only a lower bound)
         self.settled = False
         # while the loops settle, samples from here on (where the track began: the stage has emitted none of them)
@@ -280,30 +285,51 @@ class AdversaryTrack:
         blocks = self.channel.last_blocks
         self._legit_est = None   # this buffer's, or none (a stale one would not match its blocks)
         paths = self._two_paths(tracked, base_sample, blocks) if before is not None and prompts.size else None
-        self._report_skipped = False
         if paths is not None:
             # the twin within a chip pulls the spoofer's early-late balance: take it out of a copy of the samples and
             # track the same samples again from the same loop state
             # (a copy from where this buffer's tracking began: samples held back before it are not read again)
+            # Once settled, the twin is learnt by refit(), on samples without the other PRNs' spoofers
             start = max(0, int(np.floor(float(before.st[NEXT_SAMPLE]))) - base_sample - 1)
             without_legit = np.array(tracked[start:], copy=True)
             subtract_replicas(without_legit, base_sample + start, blocks,
-                              self._legit_amplitudes(paths.twin_amplitudes), self.channel.bank,
-                              offset_chips=paths.twin_offset_chips)
+                              self._legit_amplitudes(paths.twin_amplitudes, update=not self.settled),
+                              self.channel.bank, offset_chips=paths.twin_offset_chips)
             self.channel = before
             prompts, _ = self.channel.process(without_legit, base_sample + start)
             blocks = self.channel.last_blocks
-            # the separation is the same seen from either replica (the fit places both paths)
-            self.legit_offset_chips += TWIN_GAIN * (paths.separation_chips - self.legit_offset_chips)
-            # the report needs the twin against the spoofer's unpulled replica: a second bank and fit, in one buffer
-            # of REPORT_FIT_EVERY (the rest are not measured)
-            self._report_fits += 1
-            again = self._two_paths(tracked, base_sample, blocks) if self._report_fits % REPORT_FIT_EVERY == 0 else None
-            self._report_skipped = again is None
-            if again is not None:
-                self._legit_est = self._legit_amplitudes(again.twin_amplitudes, update=False)
-                self._twin_lag = again.twin_offset_chips
+            if not self.settled:   # the separation is the same seen from either replica (the fit places both paths)
+                self.legit_offset_chips += TWIN_GAIN * (paths.separation_chips - self.legit_offset_chips)
         self._tracked = (first_ms, prompts, blocks)
+
+    def refit(self, work: np.ndarray, base_sample: int, planned: tuple) -> np.ndarray | None:
+        """A joint track's second look, once every track's replica is subtracted from `work`: this buffer's
+        periods less the other PRNs' spoofers (this track's own replica added back). Their codes' cross-correlation
+        is no noise a buffer averages away where two Dopplers are close modulo 1 kHz: fitted on the raw samples,
+        the twin came out 0.01-0.06 chip too far and a few per cent too weak (GPS-SDR-SIM, every PRN spoofed at
+        +6 and +15 dB). The twin and the spoofer's amplitude are measured again there; returns the change to this
+        buffer's replica amplitudes (None: not joint, or no fit)."""
+        blocks, est = planned
+        if not self._joint():
+            return None
+        a = max(0, int(blocks[0, 0]) - base_sample)
+        b = min(work.size, int(blocks[-1, 0] + blocks[-1, 1]) - base_sample)
+        if b <= a:
+            return None
+        x = np.array(work[a:b], copy=True)
+        subtract_replicas(x, base_sample + a, blocks, -est, self.channel.bank, self.cfg.real_samples)
+        paths = self._two_paths(x, base_sample + a, blocks)
+        if paths is None:
+            return None
+        self._legit_est = self._legit_amplitudes(paths.twin_amplitudes)
+        self._twin_lag = paths.twin_offset_chips
+        self.legit_offset_chips += TWIN_GAIN * (paths.separation_chips - self.legit_offset_chips)
+        subtract_replicas(x, base_sample + a, blocks, self._legit_est, self.channel.bank,
+                          offset_chips=paths.twin_offset_chips)
+        beta, _ = residuals(x, base_sample + a, blocks, self.channel.bank)
+        beta = np.where(np.isfinite(beta), beta, est)
+        again, self._ref = decision_smooth(beta, self._ref_start, self._lam)
+        return again - est
 
     def _two_paths(self, x: np.ndarray, base_sample: int, blocks: np.ndarray) -> TwoPaths | None:
         lags = bank_lags(self.legit_offset_chips)
@@ -337,7 +363,11 @@ class AdversaryTrack:
         return float(20 * np.log10(abs(self._ref) / abs(self._legit_ref)))
 
     def _joint(self) -> bool:
-        return self.legit_offset_chips is not None and abs(self.legit_offset_chips) < JOINT_WITHIN_CHIPS
+        offset = self.legit_offset_chips
+        if offset is None:
+            return False
+        return abs(offset) < JOINT_WITHIN_CHIPS or (
+            abs(offset) < LEAKING_WITHIN_CHIPS and abs(code_correlation(self.prn, offset)) >= LEAKING_SHARE)
 
     def prepare(self, work: np.ndarray, base_sample: int) -> tuple | None:
         """The cancelling half (its stage subtracts, then measure()): the replicas track() measured, as (blocks,
@@ -354,9 +384,9 @@ class AdversaryTrack:
             return None
         i0 = int(np.argmax(settled))
         blocks, alphas = blocks[i0:], prompts[i0:] / blocks[i0:, 1]   # least squares: unit-modulus replica
-        self._legit_i0 = i0
         if not self.settled:
             self._ref = alphas[0]
+        self._ref_start = self._ref
         est, self._ref = decision_smooth(alphas, self._ref, self._lam)
         if not self.settled:
             self.settled = True
@@ -366,10 +396,9 @@ class AdversaryTrack:
 
     def measure(self, work: np.ndarray, base_sample: int, planned: tuple) -> None:
         """What the subtraction of prepare()'s replicas left (after it)."""
-        if self._report_skipped:
-            return
-        legit = None if self._legit_est is None else self._legit_est[self._legit_i0:]
-        self._measure(work, base_sample, *planned, legit)
+        if self._joint() and self._legit_est is None:
+            return   # the twin not fitted in this buffer: it would count as a residual
+        self._measure(work, base_sample, *planned, self._legit_est)
 
     def _backfill(self, work: np.ndarray, base_sample: int, settled_block: np.ndarray, settled_est: complex) -> None:
         """Cancel the held samples, from where the track began (the partial code period before its first epoch
@@ -493,6 +522,17 @@ class CancellerStage:
             for tr, (blocks, est) in planned:
                 subtract_replicas(work[a:b], base + a, blocks, est, tr.channel.bank, tr.cfg.real_samples)
         run_each(subtract, _spans(work.size, cores()))
+        # joint tracks look again without the other spoofers (each reads work), then their changes are subtracted
+        deltas = run_each(lambda item: item[0].refit(work, base, item[1]), planned)
+        again = [(tr, blocks, delta) for (tr, (blocks, _)), delta in zip(planned, deltas) if delta is not None]
+        if again:
+            def correct(part: tuple[int, int]) -> None:
+                a, b = part
+                for tr, blocks, delta in again:
+                    subtract_replicas(work[a:b], base + a, blocks, delta, tr.channel.bank, tr.cfg.real_samples)
+            run_each(correct, _spans(work.size, cores()))
+            planned = [(tr, (blocks, est if delta is None else est + delta))
+                       for (tr, (blocks, est)), delta in zip(planned, deltas)]
         run_each(lambda item: item[0].measure(work, base, item[1]), planned)   # each reads work, writes its own
         for prn, tr in tracks:
             if not tr.channel.locked:   # the spoofer went away (or was never there)
