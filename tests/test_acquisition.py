@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from semperfi.receiver.acquisition import find_peaks, noncoherent_power, second_peak_ratio
+from signals import ca_signal
 
 
 def test_noncoherent_power_equals_numpy():
@@ -77,13 +78,10 @@ def test_doppler_wipe_by_spectrum_shift_equals_a_wipe_per_bin():
 
 def _one_signal(fs_hz, prn, code_phase_chips, doppler_hz, cn0_dbhz, ms, seed):
     """A C/A signal (no data) in unit complex noise, its code phase at the first sample."""
-    from semperfi.gps import CA_CHIP_RATE_HZ, L1_HZ, ca_code
     t = np.arange(int(round(fs_hz * ms * 1e-3))) / fs_hz
-    chips = np.floor(code_phase_chips + t * CA_CHIP_RATE_HZ * (1 + doppler_hz / L1_HZ)).astype(np.int64) % 1023
-    amplitude = np.sqrt(10 ** (cn0_dbhz / 10) / fs_hz)
     rng = np.random.default_rng(seed)
     noise = (rng.standard_normal(t.size) + 1j * rng.standard_normal(t.size)) / np.sqrt(2)
-    return (amplitude * ca_code(prn)[chips] * np.exp(2j * np.pi * doppler_hz * t) + noise
+    return (ca_signal(prn, t, code_phase_chips, doppler_hz, np.sqrt(10 ** (cn0_dbhz / 10) / fs_hz)) + noise
             ).astype(np.complex64)
 
 

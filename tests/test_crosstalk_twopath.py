@@ -5,17 +5,15 @@ import pytest
 
 from semperfi.defense.detector import (TWO_PATH_BLOCK_S, DetectorConfig, cross_power, cross_power_reference,
                                       hidden_pair, is_cross_talk)
-from semperfi.gps.codes import ca_code
-from semperfi.gps.constants import CA_CHIP_RATE_HZ, L1_HZ
 from semperfi.receiver.acquisition import DopplerGrid, Peak, acquire
+from signals import ca_signal
 
 FS = 2.6e6
 T = np.arange(int(FS * 0.04)) / FS
 
 
 def _signal(prn, chips, doppler_hz, phase, cn0_dbhz):
-    code = ca_code(prn)[np.floor(chips + T * CA_CHIP_RATE_HZ * (1 + doppler_hz / L1_HZ)).astype(int) % 1023]
-    return np.sqrt(10 ** (cn0_dbhz / 10) / FS) * code * np.exp(1j * (2 * np.pi * doppler_hz * T + phase))
+    return ca_signal(prn, T, chips, doppler_hz, np.sqrt(10 ** (cn0_dbhz / 10) / FS), phase)
 
 
 @pytest.mark.parametrize("seed", range(6))

@@ -25,6 +25,7 @@ from semperfi.sim.run import simulate_to_file
 from semperfi.sim.scenario import load_scenario
 from semperfi.sim.simulate import Simulator
 from semperfi.sim.truth import read_signal_truth, truth_paths
+from signals import ca_signal
 
 FS = 2e6
 LAT, LON, H = 42.3398, -71.0892, 10.0
@@ -230,16 +231,6 @@ def test_the_two_path_fit_takes_the_noise_out_and_keeps_a_weak_twin_where_it_is(
     assert np.mean(kept) < -bound, np.mean(kept)    # without the correction: pushed out, beyond the same bound
 
 
-def _ca_signal(prn, n, fs_hz, code_phase_chips, doppler_hz, amplitude, phase_rad, bits):
-    """A C/A signal with 50 bit/s data (its bit edges on its own code epochs), at baseband."""
-    from semperfi.gps import CA_CHIP_RATE_HZ, L1_HZ
-    t = np.arange(n) / fs_hz
-    chips = code_phase_chips + t * CA_CHIP_RATE_HZ * (1 + doppler_hz / L1_HZ)
-    code = ca_code(prn)[np.floor(chips).astype(np.int64) % 1023]
-    bit = bits[np.floor(chips / 1023 / 20).astype(np.int64) % bits.size]
-    return amplitude * bit * code * np.exp(2j * np.pi * doppler_hz * t + 1j * phase_rad)
-
-
 @pytest.mark.parametrize("beat_hz", [1003.0, 450.0])
 def test_a_twins_leakage_is_taken_out_of_its_spoofers_replica_beside_another_prns_spoofer(beat_hz):
     """PRN 5 spoofed 6 dB over its 45 dB-Hz twin 0.45 chip away (the same data), and PRN 9's spoofer as strong at a
@@ -255,9 +246,10 @@ def test_a_twins_leakage_is_taken_out_of_its_spoofers_replica_beside_another_prn
     rng = np.random.default_rng(3)
     n = int(seconds * fs)
     bits = rng.choice([-1.0, 1.0], size=200)
-    spoofer = _ca_signal(5, n, fs, 100.0, doppler, 2.0, 0.3, bits)
-    twin = _ca_signal(5, n, fs, 100.0 + twin_chips, doppler, 1.0, 2.0, bits)
-    other = _ca_signal(9, n, fs, 300.3, doppler + beat_hz, 2.0, 1.1, bits)
+    t = np.arange(n) / fs
+    spoofer = ca_signal(5, t, 100.0, doppler, 2.0, 0.3, bits)
+    twin = ca_signal(5, t, 100.0 + twin_chips, doppler, 1.0, 2.0, bits)
+    other = ca_signal(9, t, 300.3, doppler + beat_hz, 2.0, 1.1, bits)
     noise = np.sqrt(10 ** -4.5 * fs / 2) * (rng.standard_normal(n) + 1j * rng.standard_normal(n))
     x = (spoofer + twin + other + noise).astype(np.complex64)
     canceller = Canceller(fs)
