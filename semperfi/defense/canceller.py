@@ -110,13 +110,18 @@ def residuals(x: np.ndarray, base_sample: int, blocks: np.ndarray, bank: CodeBan
     return beta, power
 
 
+def blocks_span(n_samples: int, base_sample: int, blocks: np.ndarray) -> tuple[int, int]:
+    """[a, b): the part of a buffer of n_samples (its first at base_sample) that the blocks cover (empty: a >= b)."""
+    if len(blocks) == 0:
+        return 0, 0
+    return (max(0, int(blocks[0, 0]) - base_sample),
+            min(n_samples, int(blocks[-1, 0] + blocks[-1, 1]) - base_sample))
+
+
 def noise_power(x: np.ndarray, base_sample: int, blocks: np.ndarray) -> float:
     """The variance of one block's correlation with white noise: the samples' mean power over the blocks (the
     noise's, at a C/N0 where every signal lies below it) / the samples in a block."""
-    if len(blocks) == 0:
-        return 0.0
-    a = max(0, int(blocks[0, 0]) - base_sample)
-    b = min(x.size, int(blocks[-1, 0] + blocks[-1, 1]) - base_sample)
+    a, b = blocks_span(x.size, base_sample, blocks)
     if b <= a:
         return 0.0
     part = x[a:b]
@@ -312,8 +317,7 @@ class AdversaryTrack:
         blocks, est = planned
         if not self._joint():
             return None
-        a = max(0, int(blocks[0, 0]) - base_sample)
-        b = min(work.size, int(blocks[-1, 0] + blocks[-1, 1]) - base_sample)
+        a, b = blocks_span(work.size, base_sample, blocks)
         if b <= a:
             return None
         x = np.array(work[a:b], copy=True)
