@@ -612,14 +612,19 @@ def test_a_prn_given_up_by_the_plug_in_filter_is_taken_out_whole(tmp_path, monke
 
 
 @pytest.mark.parametrize("delay_chips", [0.4, 1.0])
-def test_the_plug_in_filter_takes_out_a_twin_too_close_under_a_much_stronger_spoofer(tmp_path, delay_chips):
+def test_the_plug_in_filter_takes_out_a_twin_too_close_under_a_much_stronger_spoofer(tmp_path, delay_chips,
+                                                                                   monkeypatch):
     """Every satellite (50 dB-Hz) spoofed 11 dB stronger, delayed by a common 0.4 chip (or 1 chip): cancelled on
     power, each spoofer's twin found by the two-path fit under its peak (the alarm held none) and followed jointly.
-    0.4 chip under a +11 dB spoofer is too close (canceller.biased_twin): a receiver behind would take the twin's
-    range biased by what is left, so the plug-in filter gives each PRN up and takes its twin out too. A chip apart,
-    the twins stay, at their code phase."""
+    With the rule set 7 dB lower than its default (canceller.biased_twin: the 17 dB measured with GNSS-SDR behind;
+    a twin 0.4 chip under a spoofer that strong hides from the two-path search), 0.4 chip under a +11 dB spoofer is
+    too close: a receiver behind would take the twin's range biased by what is left, so the plug-in filter gives
+    each PRN up, once its tracks have settled, and takes its twin out too. A chip apart, the twins stay, at their
+    code phase."""
+    from semperfi.defense import canceller
     from semperfi.defense.canceller import BIASED_WITHIN_CHIPS
     from semperfi.defense.clean import clean_file
+    monkeypatch.setattr(canceller, "BIASED_RESIDUAL_DB", canceller.BIASED_RESIDUAL_DB - 7.0)
     rows = simulate(tmp_path / "s.bin", "constellation.max_satellites=5", "attacker.enabled=true",
                     "attacker.offset_east_m=0.0", "attacker.power_advantage_db=11.0", "constellation.cn0_dbhz=50.0",
                     f"attacker.time_offset_s={delay_chips / 1.023e6}", duration=6.0, fmt="gr_complex")
@@ -893,17 +898,18 @@ def test_an_attack_dealt_with_is_settled_after_a_takeover_and_beside_an_idle_fli
 
 
 def test_a_twin_is_biased_by_what_its_spoofers_cancellation_leaves_near_it():
-    """canceller.biased_twin: a spoofer 10 dB stronger within 0.6 chip leaves, at the 25 dB a cancellation is assumed
-    to achieve, its residual within 15 dB of the twin; a cancellation measured to achieve less leaves a weaker
-    spoofer's residual as close (SITL, +3 dB takeover: 12-18 dB, a fix called recovered 10.5 m off), while one
-    measured to achieve more does not clear a twin that close (the measurement flatters there)."""
+    """canceller.biased_twin: a spoofer 17 dB stronger within 0.6 chip leaves, at the 32 dB a cancellation is assumed
+    to achieve, its residual within 15 dB of the twin (GNSS-SDR behind the plug-in filter, twins 0.37-0.49 chip off:
+    1.1 m at +15 dB, 4.2-4.6 m at +20); a cancellation measured to achieve less leaves a weaker spoofer's residual as
+    close (SITL, +3 dB takeover: 12-18 dB, a fix called recovered 10.5 m off), while one measured to achieve more does
+    not clear a twin that close (the measurement flatters there)."""
     from semperfi.defense.canceller import biased_twin
-    assert biased_twin(10.0, 0.4) and biased_twin(16.6, -0.47)
-    assert not biased_twin(9.0, 0.4) and not biased_twin(15.0, 0.9)
+    assert biased_twin(20.1, -0.48) and biased_twin(17.0, 0.37)
+    assert not biased_twin(15.1, -0.49) and not biased_twin(21.1, 0.85)
     assert biased_twin(2.7, -0.48, attenuation_db=11.8)          # 2.7 - 11.8 = -9.1 dB: within 15 dB of the twin
     assert biased_twin(6.0, 0.5, attenuation_db=20.0)
     assert not biased_twin(2.7, -0.48, attenuation_db=19.7)      # -17 dB
-    assert biased_twin(16.6, 0.47, attenuation_db=38.0)          # measured better than assumed: not cleared
+    assert biased_twin(19.5, 0.37, attenuation_db=44.8)          # measured better than assumed: not cleared
     assert not biased_twin(2.7, 0.9, attenuation_db=5.0)         # far enough whatever is left
 
 

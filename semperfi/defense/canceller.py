@@ -223,13 +223,14 @@ TWIN_GAIN = 0.5                   # fraction of each buffer's measured twin offs
 # A legitimate signal within BIASED_WITHIN_CHIPS of its spoofer keeps, after cancellation, the spoofer's residual
 # within BIASED_RESIDUAL_DB of itself when the spoofer is BIASED_TWIN_DB stronger (the residual some
 # ASSUMED_ATTENUATION_DB down), and the closer the twin the worse the spoofer's own estimate: a multipath at under a
-# chip. Measured on GPS-SDR-SIM at +15 dB, 500 m: twins 0.4-0.5 chip away biased 2-8 m, those 0.85-1.2 chip away under
-# 1.5 m. A cancellation that achieves less leaves a weaker attacker's residual as close: ArduCopter SITL, a +3 dB
-# takeover, a twin 0.2-0.5 chip from its spoofer, the first windows 12-18 dB: its range put a fix called recovered
-# 10.5 m off. A measured attenuation counts only where it is worse than the assumed one: with a twin that close the
-# measurement (which takes the fitted twin out) flatters.
-BIASED_TWIN_DB = 10.0
-ASSUMED_ATTENUATION_DB = 25.0
+# chip. Measured with GNSS-SDR behind the plug-in filter (GPS-SDR-SIM, 500 m, twins 0.37 and 0.49 chip away): at
+# +15 dB biased 1.1 m, at +20 dB 4.2-4.6 m (twins 0.85-1.2 chip away under 0.7 m at both); 17 dB is where the bias
+# reaches about 2 m. A cancellation that achieves less leaves a weaker attacker's residual as close: ArduCopter SITL,
+# a +3 dB takeover, a twin 0.2-0.5 chip from its spoofer, the first windows 12-18 dB: its range put a fix called
+# recovered 10.5 m off. A measured attenuation counts only where it is worse than the assumed one: with a twin that
+# close the measurement (which takes the fitted twin out) flatters (39-45 dB measured at +15 and +20 dB alike).
+BIASED_TWIN_DB = 17.0
+ASSUMED_ATTENUATION_DB = 32.0
 BIASED_RESIDUAL_DB = BIASED_TWIN_DB - ASSUMED_ATTENUATION_DB
 BIASED_WITHIN_CHIPS = 0.6
 
