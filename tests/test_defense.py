@@ -268,6 +268,50 @@ def test_a_twins_leakage_is_taken_out_of_its_spoofers_replica_beside_another_prn
     assert abs(coherent) < 0.01, coherent
 
 
+@pytest.mark.parametrize("beat_hz, start_chips", [(-150.0, 0.35), (60.0, -0.35)])
+def test_a_twin_crossing_its_spoofer_is_followed_through_and_left_whole(beat_hz, start_chips):
+    """A flying receiver's twin drifts through its spoofer: PRN 5 spoofed 10 dB over its twin, their carriers
+    beat_hz apart (a drone at 15-30 m/s; the code moves with the carrier: 0.04-0.1 chip/s), the twin starting
+    0.35 chip off and crossing within the run. Before, the twin's turn was read over 10 periods only (-150 Hz
+    aliased to nought) and the two-path fit, which cannot place two paths under 0.1 chip apart, held the twin there:
+    the track lost its spoofer at the crossing and left it whole in the output. Now the twin's offset follows its
+    rate, and through the crossing the two are split by their carriers: the spoofer stays cancelled (its leftover
+    under 1 % of its power) and what the replica gets wrong, seen by a receiver on the twin, stays under 1 % of the
+    twin, as for a twin that does not move."""
+    from semperfi.gps import CA_CHIP_RATE_HZ, L1_HZ
+    from semperfi.receiver.acquisition import Peak
+    fs, seconds, doppler, spoofer_amplitude = 2.6e6, 6.5, 1200.0, 2.0 * np.sqrt(10.0)
+    rng = np.random.default_rng(3)
+    bits = rng.choice([-1.0, 1.0], size=400)
+    canceller = Canceller(fs)
+    canceller.cancel(Peak(5, 100.0, doppler, 0.0, 51.0), 0, 0, 100.0 + start_chips)
+    track = canceller.stages[0].tracks[5]
+    step, noise_power = int(0.1 * fs), 10 ** -4.5 * fs / 2
+    cleaned, without_spoofer, twin = [], [], []
+    for i in range(0, int(seconds * fs), step):
+        t = np.arange(i, i + step) / fs
+        spoofer = ca_signal(5, t, 100.0, doppler, spoofer_amplitude, 0.3, bits)
+        twin.append(ca_signal(5, t, 100.0 + start_chips, doppler + beat_hz, 2.0, 2.0, bits))
+        noise = np.sqrt(noise_power) * (rng.standard_normal(step) + 1j * rng.standard_normal(step))
+        without_spoofer.append(twin[-1] + noise)
+        cleaned.append(canceller.push((spoofer + without_spoofer[-1]).astype(np.complex64)))
+    cleaned = np.concatenate(cleaned + [canceller.flush()])
+    wrong = cleaned - np.concatenate(without_spoofer)[:cleaned.size]
+    twin = np.concatenate(twin)
+    assert track.channel.locked and 5 in canceller.stages[0].tracks
+    truth = start_chips + seconds * beat_hz * CA_CHIP_RATE_HZ / L1_HZ
+    assert abs(track.legit_offset_chips - truth) < 0.02, (track.legit_offset_chips, truth)
+    per = int(fs * 1e-3)
+    for start in np.arange(1.0, seconds - 0.5, 0.5):                 # from 1 s on: the loops settled
+        k = np.arange(int(start * fs), int(start * fs) + 400 * per)
+        chips = 100.0 + start_chips + k / fs * CA_CHIP_RATE_HZ * (1 + (doppler + beat_hz) / L1_HZ)
+        wipe = ca_code(5)[np.floor(chips).astype(np.int64) % 1023] * np.exp(-2j * np.pi * (doppler + beat_hz) * k / fs)
+        twin_there = (twin[k] * wipe).reshape(-1, per).mean(axis=1)
+        coherent = np.mean((wrong[k] * wipe).reshape(-1, per).mean(axis=1) * np.conj(twin_there) / np.abs(twin_there))
+        left = np.mean(np.abs(wrong[k]) ** 2) / spoofer_amplitude ** 2
+        assert abs(coherent) < 0.01 and left < 0.01, (start, coherent, left)
+
+
 def test_sensitive_examination_finds_a_second_signal_closer_than_the_alarm_separation(tmp_path):
     """Once the attack is known, a spoofer 0.35 chip from its twin (too close for the 500 ns alarm) raises the alarm
     on its PRN, and a clean PRN is counted as examined single-signal."""

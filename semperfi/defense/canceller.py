@@ -192,20 +192,36 @@ def decision_smooth(values: np.ndarray, ref: complex, lam: float, rotation: comp
     return est, complex(ref)
 
 
-ROTATION_LAG_PERIODS = 10        # the twin's turn is measured over this many periods (unambiguous within +-25 Hz)
+ROTATION_LAG_PERIODS = 10        # the twin's turn is measured finely over this many periods
 ROTATION_GAIN = 0.2               # per buffer: the twin's turn, smoothed over about a second
 
 
 def rotation_per_period(values: np.ndarray, lag: int = ROTATION_LAG_PERIODS) -> complex | None:
     """How far a signal's per-period complex amplitudes turn each period, whatever its data bits: the angle of
-    sum (v_k v*_{k-lag})^2 is twice the turn over lag periods (squaring takes the bits away). None when too short."""
+    sum (v_k v*_{k-lag})^2 is twice the turn over lag periods (squaring takes the bits away), known modulo pi / lag;
+    the same over one period (modulo pi: within +-250 Hz) picks which. Over `lag` periods alone a flying receiver's
+    twin aliased: 5 m/s north, 26 Hz from its spoofer, read as -24 Hz. None when too short."""
     v = np.asarray(values)[np.isfinite(values)]
     if v.size <= lag:
         return None
-    s = np.sum((v[lag:] * np.conj(v[:-lag])) ** 2)
-    if s == 0:
+    coarse, fine = (np.sum((v[n:] * np.conj(v[:-n])) ** 2) for n in (1, lag))
+    if coarse == 0 or fine == 0:
         return None
-    return complex(np.exp(0.5j * np.angle(s) / lag))
+    rough, over_lag = 0.5 * np.angle(coarse), 0.5 * np.angle(fine)
+    wraps = np.round((rough * lag - over_lag) / np.pi)
+    return complex(np.exp(1j * (over_lag + wraps * np.pi) / lag))
+
+
+# A flying receiver's twin drifts through its spoofer (their code rates differ as their carriers do: 11.7 Hz apart,
+# 0.008 chip/s). Closer than CROSSING_CHIPS the two-path fit cannot place it (its pairs stop MIN_SEPARATION_CHIPS
+# apart: the twin was held 0.1 chip off while it crossed, the spoofer's estimate took it in, and the track lost its
+# spoofer; GPS-SDR-SIM, 500 m, +10 dB, 5 m/s). There the twin's offset is carried by its rate, and the two are told
+# apart by their carriers: over a buffer the spoofer's amplitude stands still in its own carrier frame while the
+# twin's turns, so one least-squares fit of both per buffer splits them, provided the twin turns enough in it.
+CROSSING_CHIPS = 0.15
+CROSSING_MIN_HZ = 3.0             # below, the twin turns under a cycle in a buffer: too close to split by carrier
+CROSSING_MIN_SPREAD = 0.5         # the fit's two columns (1 and the turn) at least this far from collinear
+CODE_PERIOD_S = 1e-3
 
 
 # A legitimate peak closer than this to the spoofer's leaks into the spoofer's amplitude estimate (the code
@@ -264,7 +280,7 @@ class AdversaryTrack:
         self.channel = Channel(prn, fs_hz, if_hz, st, loop)
         self._ref = 0j                 # smoothed complex amplitude (bit removed)
         self._legit_ref = 0j           # the same for a legitimate signal within a chip
-        self._legit_turn = 0.0         # its turn per period (rad) in the spoofer's carrier frame:
+        self._legit_turn: float | None = None   # its turn per period (rad) in the spoofer's carrier frame:
                                        # they differ in Doppler
         self._legit_est: np.ndarray | None = None   # its amplitude per code period of the last buffer
         self._twin_lag = 0.0           # and where it was, from the spoofer's replica
@@ -290,6 +306,8 @@ class AdversaryTrack:
         prompts, _ = self.channel.process(tracked, base_sample)
         blocks = self.channel.last_blocks
         self._legit_est = None   # this buffer's, or none (a stale one would not match its blocks)
+        if before is not None and self.settled:   # the twin's offset moves as its carrier turns against the spoofer's
+            self.legit_offset_chips += self._offset_rate_chips_s * prompts.size * CODE_PERIOD_S
         paths = self._two_paths(tracked, base_sample, blocks) if before is not None and prompts.size else None
         if paths is not None:
             # the twin within a chip pulls the spoofer's early-late balance: take it out of a copy of the samples and
@@ -336,21 +354,65 @@ class AdversaryTrack:
         again, self._ref = decision_smooth(beta, self._ref_start, self._lam)
         return again - est
 
+    @property
+    def _turn_hz(self) -> float:
+        return (self._legit_turn or 0.0) / (2 * np.pi * CODE_PERIOD_S)
+
+    @property
+    def _offset_rate_chips_s(self) -> float:
+        """How fast the twin's code moves from the spoofer's: code and carrier Doppler go together."""
+        return self._turn_hz * CA_CHIP_RATE_HZ / L1_HZ
+
+    def _crossing(self) -> bool:
+        return self.settled and abs(self.legit_offset_chips) < CROSSING_CHIPS and abs(self._turn_hz) >= CROSSING_MIN_HZ
+
     def _two_paths(self, x: np.ndarray, base_sample: int, blocks: np.ndarray) -> TwoPaths | None:
+        if self._crossing():
+            return self._split_by_carrier(x, base_sample, blocks)
         lags = bank_lags(self.legit_offset_chips)
         return fit_two_paths(self.prn, correlator_bank(x, base_sample, blocks, self.channel.bank, lags), lags,
                              self.legit_offset_chips, noise_power(x, base_sample, blocks))
+
+    def _split_by_carrier(self, x: np.ndarray, base_sample: int, blocks: np.ndarray) -> TwoPaths | None:
+        """A twin crossing its spoofer (CROSSING_CHIPS), at its predicted offset: the prompt per period is
+        b_k (s + c_k t rho^k) R-weighted, the spoofer's bits b_k decided against its reference, rho the twin's turn;
+        s and t by least squares over the buffer, then the twin's own bits c_k relative to the spoofer's decided
+        and the fit made again. None when the buffer is too short for the turn to tell the two apart."""
+        z = correlator_bank(x, base_sample, blocks, self.channel.bank, np.zeros(1))[:, 0]
+        ok = np.isfinite(z)
+        if self._ref == 0 or not ok.any():
+            return None
+        turning = np.exp(2j * np.pi * self._turn_hz * CODE_PERIOD_S * np.arange(z.size))
+        if abs(np.mean(turning[ok])) > 1.0 - CROSSING_MIN_SPREAD:
+            return None
+        bits = np.where((z * np.conj(self._ref)).real >= 0, 1.0, -1.0)
+        zb = (z * bits)[ok]
+        relative = np.ones(zb.size)
+        for decide in (True, False):
+            a = np.column_stack([np.ones(zb.size), relative * turning[ok]])
+            (s_amp, t_amp), *_ = np.linalg.lstsq(a, zb, rcond=None)
+            if decide:
+                relative = np.where(((zb - s_amp) * np.conj(t_amp * turning[ok])).real >= 0, 1.0, -1.0)
+        spoofer = np.full(z.size, np.nan + 0j)
+        twin = np.full(z.size, np.nan + 0j)
+        spoofer[ok] = bits[ok] * s_amp
+        leak = code_correlation(self.prn, self.legit_offset_chips)
+        twin[ok] = bits[ok] * relative * t_amp * turning[ok] / leak
+        return TwoPaths(0.0, float(self.legit_offset_chips), spoofer, twin)
 
     def _legit_amplitudes(self, raw: np.ndarray, update: bool = True) -> np.ndarray:
         """The legitimate signal's amplitude per code period (in the spoofer's carrier frame), smoothed with its own
         data bits decided against a running reference."""
         raw = np.nan_to_num(raw)
-        if update:
+        if update and not self._crossing():   # (crossing, raw is built with the turn: nothing to learn from)
             turn = rotation_per_period(raw)
             if turn is not None:
-                self._legit_turn += ROTATION_GAIN * (np.angle(turn) - self._legit_turn)
+                # the first measurement taken whole: from nought, a flying receiver's twin turning tens of hertz
+                # took seconds to be followed, its amplitude smeared into the spoofer's replica meanwhile
+                self._legit_turn = float(np.angle(turn)) if self._legit_turn is None else \
+                    self._legit_turn + ROTATION_GAIN * (np.angle(turn) - self._legit_turn)
         ref = self._legit_ref if self._legit_ref != 0 else (raw[0] if raw.size else 0j)
-        est, ref = decision_smooth(raw, ref, self._lam, np.exp(1j * self._legit_turn))
+        est, ref = decision_smooth(raw, ref, self._lam, np.exp(1j * (self._legit_turn or 0.0)))
         if update:
             self._legit_ref = ref
         return est
