@@ -957,6 +957,39 @@ def test_a_twin_is_biased_by_what_its_spoofers_cancellation_leaves_near_it():
     assert not biased_twin(2.7, 0.9, attenuation_db=5.0)         # far enough whatever is left
 
 
+def test_the_plug_in_filter_judges_a_twin_once_and_never_takes_a_satellite_away_later():
+    """Two PRNs cancelled with twins 0.4 chip off: the one whose spoofer is 20 dB stronger when its tracks have
+    settled is given up (and its twin taken out); the one 6 dB stronger then is kept, and stays kept when later its
+    twin's estimate says 20 dB too. A satellite taken away while a receiver behind tracks it did more harm than its
+    twin's bias: GNSS-SDR kept a channel on what was left and put it in its fixes (flying GPS-SDR-SIM, 500 m, +10 and
+    +15 dB, twins drifting toward their spoofers given up 39 and 54 s in: 44 and 111 m off)."""
+    from semperfi.defense.guard import SpoofGuard
+    from semperfi.receiver.acquisition import Peak
+    fs, doppler = 2.6e6, 1200.0
+    guard = SpoofGuard(load_config(None, []), fs, remove_given_up=True)
+    rng = np.random.default_rng(5)
+    t = np.arange(int(0.6 * fs)) / fs
+    x = sum(ca_signal(prn, t, 100.0, doppler, 4.0) + ca_signal(prn, t, 100.4, doppler, 1.0, 1.0) for prn in (5, 6))
+    x = (x + np.sqrt(10 ** -4.5 * fs / 2) * (rng.standard_normal(t.size) + 1j * rng.standard_normal(t.size)))
+    for prn in (5, 6):
+        guard.canceller.cancel(Peak(prn, 100.0, doppler, 0.0, 51.0), 0, 0, 100.4)
+    step = int(0.1 * fs)
+    for i in range(0, t.size, step):
+        guard.canceller.push(x[i:i + step].astype(np.complex64))
+    tracks = {prn: guard.canceller.stages[0].tracks[prn] for prn in (5, 6)}
+    sample = tracks[5].channel.latest_epoch_sample - fs * 1e-3
+    for prn, advantage_db in ((5, 6.0), (6, 20.0)):
+        tracks[prn].settled, tracks[prn]._ref = True, 10.0 + 0j
+        tracks[prn]._legit_ref = 10.0 * 10 ** (-advantage_db / 20) + 0j
+    guard.verified |= {5, 6}
+    guard._remove_biased_twins(int(sample), 0.6)
+    assert sorted(guard.gave_up) == [6] and guard.removed == {6}, (guard.gave_up, guard.removed)
+    tracks[5]._legit_ref = 1.0 + 0j                    # later: 20 dB under its spoofer
+    assert guard.close_twin(5)[0] == pytest.approx(20.0)
+    guard._remove_biased_twins(int(sample), 5.0)
+    assert sorted(guard.gave_up) == [6] and guard.removed == {6}, (guard.gave_up, guard.removed)
+
+
 def test_a_fix_on_a_channel_just_started_is_not_yet_called_recovered():
     """A range from a channel acquired a moment ago is still settling (its code loop and carrier smoothing start from
     the acquisition's code phase: on ArduCopter SITL the eight channels acquired again at a takeover's verdict gave
