@@ -21,10 +21,10 @@ def _twin(beat_hz: float, snr_db: float = 13.0, seed: int = 3):
     return clean, clean + sigma * (rng.standard_normal(PERIODS) + 1j * rng.standard_normal(PERIODS))
 
 
-@pytest.mark.parametrize("beat_hz", [-3.0, -0.8, 0.0, 0.8, 6.0, 26.0, -150.0, 240.0])
+@pytest.mark.parametrize("beat_hz", [-3.0, -0.8, 0.0, 0.8, 6.0, 26.0, -150.0, 240.0, -410.0])
 def test_the_turn_per_period_is_measured_through_the_data_bits(beat_hz):
-    """Up to a fast drone's few hundred hertz between a twin and its spoofer: over 10 periods alone, 26 Hz read as
-    -24, -150 as nought."""
+    """Up to a fast drone's, or a takeover's, few hundred hertz between a twin and its spoofer: over 10 periods
+    alone, 26 Hz read as -24, -150 as nought."""
     _, noisy = _twin(beat_hz)
     turn = rotation_per_period(noisy[:200])        # one buffer
     # the angle's noise over 190 squared products at 13 dB, seen over 10 periods: ~3e-3 rad, well under this

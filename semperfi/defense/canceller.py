@@ -199,16 +199,17 @@ ROTATION_GAIN = 0.2               # per buffer: the twin's turn, smoothed over a
 def rotation_per_period(values: np.ndarray, lag: int = ROTATION_LAG_PERIODS) -> complex | None:
     """How far a signal's per-period complex amplitudes turn each period, whatever its data bits: the angle of
     sum (v_k v*_{k-lag})^2 is twice the turn over lag periods (squaring takes the bits away), known modulo pi / lag;
-    the same over one period (modulo pi: within +-250 Hz) picks which. Over `lag` periods alone a flying receiver's
-    twin aliased: 5 m/s north, 26 Hz from its spoofer, read as -24 Hz. None when too short."""
+    the angle of sum v_k v*_{k-1} (a bit flips between one pair in 20: the sum shrinks, its angle stays) picks
+    which, within +-500 Hz. Over `lag` periods alone a flying receiver's twin aliased: 5 m/s north, 26 Hz from its
+    spoofer, read as -24 Hz. None when too short."""
     v = np.asarray(values)[np.isfinite(values)]
     if v.size <= lag:
         return None
-    coarse, fine = (np.sum((v[n:] * np.conj(v[:-n])) ** 2) for n in (1, lag))
+    coarse, fine = np.sum(v[1:] * np.conj(v[:-1])), np.sum((v[lag:] * np.conj(v[:-lag])) ** 2)
     if coarse == 0 or fine == 0:
         return None
-    rough, over_lag = 0.5 * np.angle(coarse), 0.5 * np.angle(fine)
-    wraps = np.round((rough * lag - over_lag) / np.pi)
+    over_lag = 0.5 * np.angle(fine)
+    wraps = np.round((np.angle(coarse) * lag - over_lag) / np.pi)
     return complex(np.exp(1j * (over_lag + wraps * np.pi) / lag))
 
 
