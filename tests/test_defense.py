@@ -980,6 +980,7 @@ def test_the_plug_in_filter_judges_a_twin_once_and_never_takes_a_satellite_away_
     sample = tracks[5].channel.latest_epoch_sample - fs * 1e-3
     for prn, advantage_db in ((5, 6.0), (6, 20.0)):
         tracks[prn].settled, tracks[prn]._ref = True, 10.0 + 0j
+        tracks[prn].attenuation_db.append((40.0, True))
         tracks[prn]._legit_ref = 10.0 * 10 ** (-advantage_db / 20) + 0j
     guard.verified |= {5, 6}
     guard._remove_biased_twins(int(sample), 0.6)

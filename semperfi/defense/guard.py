@@ -909,13 +909,14 @@ class SpoofGuard:
         (canceller.biased_twin): a receiver behind it would take the twin's range biased by what is left of the
         spoofer, so the PRN is given up and the twin taken out too (the receiver does without the satellite).
 
-        Judged once, when the PRN's tracks first have their estimates: a satellite taken away later, while a
-        receiver behind tracks it, is the worse harm (GNSS-SDR kept a channel on what was left for seconds and put
-        it in its fixes: flying GPS-SDR-SIM, 500 m, +10 and +15 dB, twins drifting toward their spoofers given up 39
-        and 54 s in, 44 and 111 m off over the last 10 s)."""
+        Judged once, when the PRN's tracks first have their estimates (settled, and a window of their attenuation
+        measured: at settling a twin's offset may still be 0.1 chip off, GPS-SDR-SIM +20 dB, -0.61 for -0.48): a
+        satellite taken away later, while a receiver behind tracks it, is the worse harm (GNSS-SDR kept a channel on
+        what was left for seconds and put it in its fixes: flying GPS-SDR-SIM, 500 m, +10 and +15 dB, twins drifting
+        toward their spoofers given up 39 and 54 s in, 44 and 111 m off over the last 10 s)."""
         for prn in sorted(self.verified - self.removed - set(self.gave_up) - self._twin_judged):
             tracks = self._tracks(prn)
-            if not tracks or not all(tr.settled for tr in tracks):
+            if not tracks or not all(tr.settled and tr.attenuation_db for tr in tracks):
                 continue
             self._twin_judged.add(prn)
             twin = self.close_twin(prn)
