@@ -663,15 +663,15 @@ def test_the_plug_in_filter_takes_out_a_twin_too_close_under_a_much_stronger_spo
     With the rule set 7 dB lower than its default (canceller.biased_twin: the 17 dB measured with GNSS-SDR behind;
     a twin 0.4 chip under a spoofer that strong hides from the two-path search), 0.4 chip under a +11 dB spoofer is
     too close: a receiver behind would take the twin's range biased by what is left, so the plug-in filter gives
-    each PRN up, once its tracks have settled, and takes its twin out too. A chip apart, the twins stay, at their
-    code phase."""
+    each PRN up, once its tracks have measured two attenuation windows (about 5.5 s in here: the run is 8 s, looked at
+    7.3 s in), and takes its twin out too. A chip apart, the twins stay, at their code phase."""
     from semperfi.defense import canceller
     from semperfi.defense.canceller import BIASED_WITHIN_CHIPS
     from semperfi.defense.clean import clean_file
     monkeypatch.setattr(canceller, "BIASED_RESIDUAL_DB", canceller.BIASED_RESIDUAL_DB - 7.0)
     rows = simulate(tmp_path / "s.bin", "constellation.max_satellites=5", "attacker.enabled=true",
                     "attacker.offset_east_m=0.0", "attacker.power_advantage_db=11.0", "constellation.cn0_dbhz=50.0",
-                    f"attacker.time_offset_s={delay_chips / 1.023e6}", duration=6.0, fmt="gr_complex")
+                    f"attacker.time_offset_s={delay_chips / 1.023e6}", duration=8.0, fmt="gr_complex")
     cfg = load_config(None, ['defense.verify_after_s=0.5'])
     summary = clean_file(tmp_path / "s.bin", tmp_path / "c.bin", "gr_complex", FS, 0.0, cfg)
     events = [json.loads(line) for line in open(tmp_path / "c.events.jsonl")]
@@ -681,16 +681,16 @@ def test_the_plug_in_filter_takes_out_a_twin_too_close_under_a_much_stronger_spo
     assert sorted(twins) == legit and all(abs(d - delay_chips) < 0.2 for d in twins.values()), twins
     close = delay_chips < BIASED_WITHIN_CHIPS
     assert summary.removed == (tuple(legit) if close else ()), (summary.removed, summary.gave_up)
-    x = open_iq(tmp_path / "c.bin").read(int(4.8 * FS), int(0.04 * FS))
+    x = open_iq(tmp_path / "c.bin").read(int(7.3 * FS), int(0.04 * FS))
     for prn in legit:
         twin = min((r for r in rows if r["prn"] == prn and r["source"] == "legit"),
-                   key=lambda r: abs(r["t_rx_s"] - 4.8))
+                   key=lambda r: abs(r["t_rx_s"] - 7.3))
         at_twin = _power_at(x, FS, prn, twin["code_phase_chips"], twin["doppler_hz"])
         noise = _power_at(x, FS, prn, (twin["code_phase_chips"] + 500.0) % 1023, twin["doppler_hz"])
         # a 50 dB-Hz twin stands ~25 dB over 1 ms of noise (x300); taken out, within the noise's spread of 20 looks
         assert (at_twin < 3 * noise) if close else (at_twin > 30 * noise), (prn, at_twin, noise)
         spoofer = min((r for r in rows if r["prn"] == prn and r["source"] != "legit"),
-                      key=lambda r: abs(r["t_rx_s"] - 4.8))
+                      key=lambda r: abs(r["t_rx_s"] - 7.3))
         at_spoofer = _power_at(x, FS, prn, spoofer["code_phase_chips"], spoofer["doppler_hz"])
         print(f"PRN {prn}: twin / noise {at_twin / noise:.1f}, spoofer / noise {at_spoofer / noise:.1f}")
         if close:   # nothing left where the spoofer was either: a residual a receiver could track would hand it the
@@ -980,7 +980,7 @@ def test_the_plug_in_filter_judges_a_twin_once_and_never_takes_a_satellite_away_
     sample = tracks[5].channel.latest_epoch_sample - fs * 1e-3
     for prn, advantage_db in ((5, 6.0), (6, 20.0)):
         tracks[prn].settled, tracks[prn]._ref = True, 10.0 + 0j
-        tracks[prn].attenuation_db.append((40.0, True))
+        tracks[prn].attenuation_db.extend([(20.0, False), (40.0, True)])   # judged on the latest
         tracks[prn]._legit_ref = 10.0 * 10 ** (-advantage_db / 20) + 0j
     guard.verified |= {5, 6}
     guard._remove_biased_twins(int(sample), 0.6)

@@ -46,6 +46,9 @@ TWIN_MATCH_CHIPS = 0.25   # an examination's code phase (2 ms coherent, interpol
 # (aligned: nothing is left); +20 dB spoofers 500 m off leave their real twins at 2.6 thresholds and more. Below it
 # the PRN is taken as merged, its range the attacker's within half a chip: never a good fix.
 LEFT_MIN_THRESHOLDS = 2.0
+# the plug-in filter judges a twin once its track has measured this many attenuation windows, on the latest: the
+# first spans the settling (GPS-SDR-SIM, flying, +15 dB: a twin judged on it, 15.1 dB under its spoofer, was given up)
+JUDGED_AFTER_WINDOWS = 2
 RELEASE_MARGIN_S = 2e-3   # a dropped cancellation leaves the samples cleaned this much later (held-back period)
 # Once an attack is known, a PRN with one peak is looked at longer, around its own Doppler: its twin may lie beside a
 # spoofer it is too weak to show next to in 2 ms x 20 under a dozen spoofers' interference (GPS-SDR-SIM, path loss,
@@ -909,14 +912,14 @@ class SpoofGuard:
         (canceller.biased_twin): a receiver behind it would take the twin's range biased by what is left of the
         spoofer, so the PRN is given up and the twin taken out too (the receiver does without the satellite).
 
-        Judged once, when the PRN's tracks first have their estimates (settled, and a window of their attenuation
-        measured: at settling a twin's offset may still be 0.1 chip off, GPS-SDR-SIM +20 dB, -0.61 for -0.48): a
-        satellite taken away later, while a receiver behind tracks it, is the worse harm (GNSS-SDR kept a channel on
-        what was left for seconds and put it in its fixes: flying GPS-SDR-SIM, 500 m, +10 and +15 dB, twins drifting
-        toward their spoofers given up 39 and 54 s in, 44 and 111 m off over the last 10 s)."""
+        Judged once, when the PRN's tracks first have their estimates (settled, and JUDGED_AFTER_WINDOWS windows of
+        their attenuation measured: at settling a twin's offset may still be 0.1 chip off, GPS-SDR-SIM +20 dB, -0.61
+        for -0.48): a satellite taken away later, while a receiver behind tracks it, is the worse harm (GNSS-SDR
+        kept a channel on what was left for seconds and put it in its fixes: flying GPS-SDR-SIM, 500 m, +10 and +15
+        dB, twins drifting toward their spoofers given up 39 and 54 s in, 44 and 111 m off over the last 10 s)."""
         for prn in sorted(self.verified - self.removed - set(self.gave_up) - self._twin_judged):
             tracks = self._tracks(prn)
-            if not tracks or not all(tr.settled and tr.attenuation_db for tr in tracks):
+            if not tracks or not all(tr.settled and len(tr.attenuation_db) >= JUDGED_AFTER_WINDOWS for tr in tracks):
                 continue
             self._twin_judged.add(prn)
             twin = self.close_twin(prn)
