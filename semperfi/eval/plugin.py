@@ -101,10 +101,13 @@ def _mean_cn0(rows: dict) -> float | None:
     return round(float(np.mean(cn0)), 1) if cn0.size else None
 
 
-def fingerprint(case, nav_path: str | Path, work: Path, gnss_sdr: bool = True, from_s: float = 0.0) -> dict:
+def fingerprint(case, nav_path: str | Path, work: Path, gnss_sdr: bool = True, from_s: float = 0.0,
+                gnss_sdr_runs: int = 1) -> dict:
     """Clean a case's mix and receive it, and the same scene without an attacker, with our receiver (--defense off)
     and, when asked and on PATH, GNSS-SDR (unmodified, RINEX on): per receiver, per PRN, range_differences (from
-    from_s seconds into the recording), and what `clean` said it did."""
+    from_s seconds into the recording), and what `clean` said it did. GNSS-SDR runs gnss_sdr_runs times on each
+    file (its threads make each run differ: on one cleaned file its first fix came at 35, 53 and 59 s), every run's
+    score in out["gnss_sdr_runs"]; its first run gives the ranges."""
     import shutil
 
     from ..defense import load_config
@@ -136,12 +139,18 @@ def fingerprint(case, nav_path: str | Path, work: Path, gnss_sdr: bool = True, f
     out["receivers"]["semperfi --defense off"] = range_differences(obs["reference"], obs["cleaned"], t0_s)
     if gnss_sdr and shutil.which(GNSS_SDR_EXE):
         for name, path in (("reference", reference), ("cleaned", cleaned)):
-            run_dir = work / f"{case.tag}-plugin-{name}-gnss-sdr"
-            shutil.rmtree(run_dir, ignore_errors=True)
-            fixes = run_gnss_sdr(path, case.fs_hz, "ishort", 0.0, run_dir, 1800.0, trop_model="OFF", rinex=True)
-            out["fixes"].setdefault("gnss-sdr", {})[name] = _gnss_sdr_score(fixes, case)
-            found = sorted(p for p in run_dir.iterdir() if p.suffix[1:3].isdigit() and p.suffix[3:].upper() == "O")
-            obs[name] = read_ranges(found[0]) if found else {}
+            runs = []
+            for i in range(gnss_sdr_runs):
+                run_dir = work / (f"{case.tag}-plugin-{name}-gnss-sdr" + (f"-{i}" if i else ""))
+                shutil.rmtree(run_dir, ignore_errors=True)
+                fixes = run_gnss_sdr(path, case.fs_hz, "ishort", 0.0, run_dir, 1800.0, trop_model="OFF", rinex=True)
+                runs.append(_gnss_sdr_score(fixes, case))
+                if i == 0:
+                    found = sorted(p for p in run_dir.iterdir()
+                                   if p.suffix[1:3].isdigit() and p.suffix[3:].upper() == "O")
+                    obs[name] = read_ranges(found[0]) if found else {}
+            out["fixes"].setdefault("gnss-sdr", {})[name] = runs[0]
+            out.setdefault("gnss_sdr_runs", {})[name] = runs
         out["receivers"]["gnss-sdr"] = range_differences(obs["reference"], obs["cleaned"], t0_s)
     return out
 
