@@ -12,7 +12,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from ..gps import CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, L1_HZ, ca_code, chips_apart, chips_offset
+from ..gps import (CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, CA_CODE_PERIOD_S, L1_HZ, ca_code, chips_apart,
+                  chips_offset)
 from ..receiver import (Channel, CodeBank, DopplerGrid, LoopConfig, NEXT_SAMPLE, Peak, acquire, cores, fill_lanes,
                         initial_state, lane_buffer, replica, run_each, sub_block_samples)
 from .twopath_track import TwoPaths, bank_lags, code_correlation, correlator_bank, fit_two_paths
@@ -222,7 +223,6 @@ def rotation_per_period(values: np.ndarray, lag: int = ROTATION_LAG_PERIODS) -> 
 CROSSING_CHIPS = 0.15
 CROSSING_MIN_HZ = 3.0             # below, the twin turns under a cycle in a buffer: too close to split by carrier
 CROSSING_MIN_SPREAD = 0.5         # the fit's two columns (1 and the turn) at least this far from collinear
-CODE_PERIOD_S = 1e-3
 
 
 # A legitimate peak closer than this to the spoofer's leaks into the spoofer's amplitude estimate (the code
@@ -308,7 +308,7 @@ class AdversaryTrack:
         blocks = self.channel.last_blocks
         self._legit_est = None   # this buffer's, or none (a stale one would not match its blocks)
         if before is not None and self.settled:   # the twin's offset moves as its carrier turns against the spoofer's
-            self.legit_offset_chips += self._offset_rate_chips_s * prompts.size * CODE_PERIOD_S
+            self.legit_offset_chips += self._offset_rate_chips_s * prompts.size * CA_CODE_PERIOD_S
         paths = self._two_paths(tracked, base_sample, blocks) if before is not None and prompts.size else None
         if paths is not None:
             # the twin within a chip pulls the spoofer's early-late balance: take it out of a copy of the samples and
@@ -357,7 +357,7 @@ class AdversaryTrack:
 
     @property
     def _turn_hz(self) -> float:
-        return (self._legit_turn or 0.0) / (2 * np.pi * CODE_PERIOD_S)
+        return (self._legit_turn or 0.0) / (2 * np.pi * CA_CODE_PERIOD_S)
 
     @property
     def _offset_rate_chips_s(self) -> float:
@@ -383,7 +383,7 @@ class AdversaryTrack:
         ok = np.isfinite(z)
         if self._ref == 0 or not ok.any():
             return None
-        turning = np.exp(2j * np.pi * self._turn_hz * CODE_PERIOD_S * np.arange(z.size))
+        turning = np.exp(2j * np.pi * self._turn_hz * CA_CODE_PERIOD_S * np.arange(z.size))
         if abs(np.mean(turning[ok])) > 1.0 - CROSSING_MIN_SPREAD:
             return None
         bits = np.where((z * np.conj(self._ref)).real >= 0, 1.0, -1.0)
