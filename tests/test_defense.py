@@ -133,10 +133,12 @@ def test_no_alarm_on_clean_signals_or_a_short_echo(tmp_path, sets):
     assert not alarms, [(t, a.pair.as_event()) for t, a in alarms]
 
 
-@pytest.mark.parametrize("fs", [2e6, 2.6e6, 10e6])
-def test_the_two_path_trackers_correlator_bank_equals_its_reference(fs):
+@pytest.mark.parametrize("fs, add_back, both_images", [(2e6, False, False), (2.6e6, False, False),
+                                                      (10e6, False, False), (2.6e6, True, False), (4e6, True, True)])
+def test_the_two_path_trackers_correlator_bank_equals_its_reference(fs, add_back, both_images):
     """The bank of correlators around a spoofer's replica (lags beyond the code's one-chip wrap, code steps off the
-    bank's nominal rate) against numpy's correlation with the replica moved by each lag."""
+    bank's nominal rate) against numpy's correlation with the replica moved by each lag, and each period's power;
+    with the replica itself added back to the samples as they are read (complex, or a real signal's two images)."""
     from semperfi.defense.twopath_track import bank_lags, correlator_bank, correlator_bank_reference
     rng = np.random.default_rng(4)
     n = int(3.2e-3 * fs)
@@ -148,17 +150,44 @@ def test_the_two_path_trackers_correlator_bank_equals_its_reference(fs):
                        [n - 50.0, period, 0.5, step, 0.0, 0.0]])      # not wholly inside x: nan
     lags = bank_lags(-1.13)
     assert lags[0] <= -1.13 - 0.7 and lags[-1] >= 0.7
-    fast = correlator_bank(x, 0, blocks, code_bank(5, fs), lags)
-    slow = correlator_bank_reference(x, 0, blocks, 5, lags)
-    assert np.isnan(fast[2]).all() and np.isnan(slow[2]).all()
+    add = np.array([3.0 - 1.2j, -0.7 + 2.5j, 1.0]) if add_back else None
+    fast, fast_power = correlator_bank(x, 0, blocks, code_bank(5, fs), lags, add, both_images)
+    slow, slow_power = correlator_bank_reference(x, 0, blocks, 5, lags, add, both_images)
+    assert np.isnan(fast[2]).all() and np.isnan(slow[2]).all() and np.isnan(fast_power[2])
+    own = np.zeros(len(blocks)) if add is None else np.abs(add) * (2 if both_images else 1)
     for i, block in enumerate(blocks[:2]):
         first, m = int(block[0]), int(block[1])
+        edge = near_chip_edge(n, 0, block[None])[first:first + m]
+        own_flips = 2 * own[i] * np.sum(edge) / m   # the replica added back may flip there too
         for k, lag in enumerate(lags):
             moved = block.copy()
             moved[2] += lag
             edge = near_chip_edge(n, 0, moved[None])[first:first + m]
-            flips = 2 * np.sum(np.abs(x[first:first + m][edge])) / m
-            assert abs(fast[i, k] - slow[i, k]) < 1e-5 + flips, (fs, i, lag, fast[i, k], slow[i, k])
+            flips = 2 * np.sum(np.abs(x[first:first + m][edge])) / m + own_flips
+            assert abs(fast[i, k] - slow[i, k]) < 1e-5 * (1 + own[i]) + flips, (fs, i, lag, fast[i, k], slow[i, k])
+        power = np.mean(np.abs(x[first:first + m]) ** 2) + own[i] ** 2
+        assert abs(fast_power[i] - slow_power[i]) < 1e-4 * power + 4 * own_flips * (1 + own[i]), \
+            (fast_power[i], slow_power[i])
+
+
+@pytest.mark.parametrize("fs, offset_chips", [(2.6e6, 0.37), (4e6, -0.81), (10e6, 1.13)])
+def test_the_code_overlap_equals_its_reference(fs, offset_chips):
+    """A twin's share of its spoofer's prompt, from the replicas as the kernels build them, against numpy's exact
+    code phases: equal but where a sample lies on a chip edge (each such sample moves it by 2 / samples)."""
+    from semperfi.defense.canceller import code_overlap, code_overlap_reference
+    step = 1.023e6 / fs
+    period = int(np.ceil(1023 / step))
+    blocks = np.array([[100.0, period - 1, 0.2731, step * (1 + 3e-6), 0.25, 0.0007],
+                       [100.0 + period, period, 0.0913, step * (1 - 4e-5), 0.61, -0.0011]])
+    fast, slow = code_overlap(blocks, code_bank(5, fs), offset_chips), code_overlap_reference(blocks, 5, offset_chips)
+    for i, block in enumerate(blocks):
+        first, m = int(block[0]), int(block[1])
+        moved = block.copy()
+        moved[2] += offset_chips
+        edges = np.sum(near_chip_edge(first + m, 0, block[None])[first:]) + \
+            np.sum(near_chip_edge(first + m, 0, moved[None])[first:])
+        assert abs(fast[i] - slow[i]) <= 1e-12 + 2 * edges / m, (fast[i], slow[i], edges)
+    assert abs(np.mean(slow) - {0.37: 0.63, -0.81: 0.19, 1.13: 0.0}[offset_chips]) < 0.1   # about the triangle
 
 
 @pytest.mark.parametrize("prn", [8, 7])
@@ -175,7 +204,7 @@ def test_the_fits_code_correlation_is_what_the_bank_measures(prn):
     blocks = np.array([[s0, np.ceil(((k + 1) * 1023 - 0.37) / step) - s0, (0.37 + s0 * step) % 1023, step, 0.0, 0.0]
                        for k, s0 in enumerate(starts)])
     lags = bank_lags(0.0)
-    measured = np.mean(correlator_bank(x, 0, blocks, code_bank(prn, fs), lags).real, axis=0)
+    measured = np.mean(correlator_bank(x, 0, blocks, code_bank(prn, fs), lags)[0].real, axis=0)
     assert np.max(np.abs(measured - code_correlation(prn, lags))) < 0.02, \
         np.round(measured - code_correlation(prn, lags), 3)
     assert abs(code_correlation(prn, 1.0) - {8: -65 / 1023, 7: 63 / 1023}[prn]) < 1e-12

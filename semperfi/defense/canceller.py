@@ -16,7 +16,7 @@ from ..gps import (CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, CA_CODE_PERIOD_S, L1_H
                   chips_offset)
 from ..receiver import (Channel, CodeBank, DopplerGrid, LoopConfig, NEXT_SAMPLE, Peak, acquire, cores, fill_lanes,
                         initial_state, lane_buffer, replica, run_each, sub_block_samples)
-from .twopath_track import TwoPaths, bank_lags, code_correlation, correlator_bank, fit_two_paths
+from .twopath_track import TwoPaths, bank_lags, code_correlation, correlator_bank, fit_two_paths, paths_at
 
 MEASURE_EVERY = 8                 # code periods per attenuation measurement
 
@@ -111,22 +111,52 @@ def residuals(x: np.ndarray, base_sample: int, blocks: np.ndarray, bank: CodeBan
     return beta, power
 
 
-def blocks_span(n_samples: int, base_sample: int, blocks: np.ndarray) -> tuple[int, int]:
-    """[a, b): the part of a buffer of n_samples (its first at base_sample) that the blocks cover (empty: a >= b)."""
-    if len(blocks) == 0:
-        return 0, 0
-    return (max(0, int(blocks[0, 0]) - base_sample),
-            min(n_samples, int(blocks[-1, 0] + blocks[-1, 1]) - base_sample))
-
-
-def noise_power(x: np.ndarray, base_sample: int, blocks: np.ndarray) -> float:
+def noise_power(power: np.ndarray, blocks: np.ndarray) -> float:
     """The variance of one block's correlation with white noise: the samples' mean power over the blocks (the
-    noise's, at a C/N0 where every signal lies below it) / the samples in a block."""
-    a, b = blocks_span(x.size, base_sample, blocks)
-    if b <= a:
+    noise's, at a C/N0 where every signal lies below it; power: per block, nan where not measured) / the samples in
+    a block."""
+    ok = np.isfinite(power)
+    if not ok.any():
         return 0.0
-    part = x[a:b]
-    return float(np.vdot(part, part).real / part.size / np.mean(blocks[:, 1]))
+    n = blocks[ok, 1]
+    return float(np.sum(power[ok] * n) / np.sum(n) / np.mean(blocks[:, 1]))
+
+
+@njit(cache=True, nogil=True)
+def _overlap_kernel(blocks, rows, first, bank_step, offset_chips, out):
+    """out[m]: block m's replica times the same replica moved by offset_chips, summed / samples."""
+    for m in range(blocks.shape[0]):
+        n, cp, step = np.int64(blocks[m, 1]), blocks[m, 2], blocks[m, 3]
+        s_max = sub_block_samples(step, bank_step)
+        acc = np.int64(0)
+        k0 = 0
+        while k0 < n:
+            s = min(s_max, n - k0)
+            here = replica(rows, first, bank_step, cp, step, k0, s)
+            moved = replica(rows, first, bank_step, cp + offset_chips, step, k0, s)
+            for j in range(s):
+                acc += np.int64(here[j]) * np.int64(moved[j])
+            k0 += s
+        out[m] = acc / n
+
+
+def code_overlap(blocks: np.ndarray, bank: CodeBank, offset_chips: float) -> np.ndarray:
+    """Per block: what a unit signal on the replica moved by offset_chips gives at the replica itself, the
+    replicas exactly as the kernels build them (a twin's share of its spoofer's prompt)."""
+    out = np.empty(len(blocks))
+    _overlap_kernel(blocks, bank.rows, bank.first, bank.step_chips, float(offset_chips), out)
+    return out
+
+
+def code_overlap_reference(blocks, prn: int, offset_chips: float) -> np.ndarray:
+    """The same with numpy and the exact code phase (slow; for tests)."""
+    code = ca_code(prn).astype(np.float64)
+    out = np.empty(len(blocks))
+    for m, (_, n, cp, step, _, _) in enumerate(blocks):
+        k = np.arange(int(n))
+        here = code[np.floor(cp + k * step).astype(np.int64) % 1023]
+        out[m] = np.mean(here * code[np.floor(cp + offset_chips + k * step).astype(np.int64) % 1023])
+    return out
 
 
 def replicas_reference(n_samples: int, base_sample: int, blocks, amplitudes, prn: int) -> np.ndarray:
@@ -309,7 +339,10 @@ class AdversaryTrack:
         self._legit_est = None   # this buffer's, or none (a stale one would not match its blocks)
         if before is not None and self.settled:   # the twin's offset moves as its carrier turns against the spoofer's
             self.legit_offset_chips += self._offset_rate_chips_s * prompts.size * CA_CODE_PERIOD_S
-        paths = self._two_paths(tracked, base_sample, blocks) if before is not None and prompts.size else None
+        paths = None
+        if before is not None and prompts.size:
+            paths = self._twin_where_carried(tracked, base_sample, blocks) if self.settled else \
+                self._two_paths(tracked, base_sample, blocks)[0]
         if paths is not None:
             # the twin within a chip pulls the spoofer's early-late balance: take it out of a copy of the samples and
             # track the same samples again from the same loop state
@@ -337,20 +370,14 @@ class AdversaryTrack:
         blocks, est = planned
         if not self._joint():
             return None
-        a, b = blocks_span(work.size, base_sample, blocks)
-        if b <= a:
-            return None
-        x = np.array(work[a:b], copy=True)
-        subtract_replicas(x, base_sample + a, blocks, -est, self.channel.bank, self.cfg.real_samples)
-        paths = self._two_paths(x, base_sample + a, blocks)
+        paths, prompt = self._two_paths(work, base_sample, blocks, add=est)
         if paths is None:
             return None
         self._legit_est = self._legit_amplitudes(paths.twin_amplitudes)
         self._twin_lag = paths.twin_offset_chips
         self.legit_offset_chips += TWIN_GAIN * (paths.separation_chips - self.legit_offset_chips)
-        subtract_replicas(x, base_sample + a, blocks, self._legit_est, self.channel.bank,
-                          offset_chips=paths.twin_offset_chips)
-        beta, _ = residuals(x, base_sample + a, blocks, self.channel.bank)
+        # the spoofer's prompt less the twin's share of it: the residual at the replica, the twin subtracted
+        beta = prompt - self._legit_est * code_overlap(blocks, self.channel.bank, paths.twin_offset_chips)
         beta = np.where(np.isfinite(beta), beta, est)
         again, self._ref = decision_smooth(beta, self._ref_start, self._lam)
         return again - est
@@ -367,19 +394,37 @@ class AdversaryTrack:
     def _crossing(self) -> bool:
         return self.settled and abs(self.legit_offset_chips) < CROSSING_CHIPS and abs(self._turn_hz) >= CROSSING_MIN_HZ
 
-    def _two_paths(self, x: np.ndarray, base_sample: int, blocks: np.ndarray) -> TwoPaths | None:
-        if self._crossing():
-            return self._split_by_carrier(x, base_sample, blocks)
-        lags = bank_lags(self.legit_offset_chips)
-        return fit_two_paths(self.prn, correlator_bank(x, base_sample, blocks, self.channel.bank, lags), lags,
-                             self.legit_offset_chips, noise_power(x, base_sample, blocks))
+    def _two_paths(self, x: np.ndarray, base_sample: int, blocks: np.ndarray,
+                   add: np.ndarray | None = None) -> tuple[TwoPaths | None, np.ndarray]:
+        """Both paths fitted on this buffer, and each period's correlation with the replica itself. add: this
+        track's replica amplitudes, added back to x as it is read (x less every spoofer, this one's put back)."""
+        crossing = self._crossing()
+        lags = np.zeros(1) if crossing else np.append(bank_lags(self.legit_offset_chips), 0.0)
+        y, power = correlator_bank(x, base_sample, blocks, self.channel.bank, lags, add, self.cfg.real_samples)
+        prompt = y[:, -1]
+        if crossing:
+            return self._split_by_carrier(prompt), prompt
+        return fit_two_paths(self.prn, y[:, :-1], lags[:-1], self.legit_offset_chips,
+                             noise_power(power, blocks)), prompt
 
-    def _split_by_carrier(self, x: np.ndarray, base_sample: int, blocks: np.ndarray) -> TwoPaths | None:
+    def _twin_where_carried(self, x: np.ndarray, base_sample: int, blocks: np.ndarray) -> TwoPaths | None:
+        """A settled track's twin for its first tracking pass, at the offset carried from the last buffer's fit, the
+        spoofer on the replica: two correlators, not a bank. The fit's own offsets there differed from these by its
+        noise (GPS-SDR-SIM, every PRN spoofed, +6 dB, twins 0.8 and 1 chip off: the spoofer 0.003 +- 0.006 chip, the
+        twin 0.006 +- 0.015 chip), and refit() fits the buffer again on the replica tracked without the twin."""
+        crossing = self._crossing()
+        lags = np.zeros(1) if crossing else np.array([0.0, self.legit_offset_chips])
+        y, _ = correlator_bank(x, base_sample, blocks, self.channel.bank, lags)
+        if crossing:
+            return self._split_by_carrier(y[:, 0])
+        return paths_at(self.prn, y, lags, 0.0, float(self.legit_offset_chips))
+
+    def _split_by_carrier(self, z: np.ndarray) -> TwoPaths | None:
         """A twin crossing its spoofer (CROSSING_CHIPS), at its predicted offset: the prompt per period is
         b_k (s + c_k t rho^k) R-weighted, the spoofer's bits b_k decided against its reference, rho the twin's turn;
         s and t by least squares over the buffer, then the twin's own bits c_k relative to the spoofer's decided
-        and the fit made again. None when the buffer is too short for the turn to tell the two apart."""
-        z = correlator_bank(x, base_sample, blocks, self.channel.bank, np.zeros(1))[:, 0]
+        and the fit made again (z: the prompt per period). None when the buffer is too short for the turn to tell
+        the two apart."""
         ok = np.isfinite(z)
         if self._ref == 0 or not ok.any():
             return None

@@ -41,9 +41,12 @@ def bank_lags(twin_offset_chips: float) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True, fastmath=True)
-def _bank_kernel(x, base_sample, blocks, rows, first, bank_step, lags, lanes, wiped, out):
-    """out[m, k]: block m's correlation with the replica moved by lags[k], / samples; nan for a block not wholly in x.
-    The carrier is wiped once per sub-block, then each lag is one pass of multiply-adds over it."""
+def _bank_kernel(x, base_sample, blocks, rows, first, bank_step, lags, lanes, wiped, add, both_images, out,
+                 out_power):
+    """out[m, k]: block m's correlation with the replica moved by lags[k], / samples; out_power[m]: the block's mean
+    power; nan for a block not wholly in x. add (one per block, or none): the replica at lag 0 times add[m] is added
+    to the samples as they are read (both_images: its real part, twice). The carrier is wiped once per sub-block,
+    then each lag is one pass of multiply-adds over it."""
     n_lags = lags.size
     acc_re = np.empty(n_lags)
     acc_im = np.empty(n_lags)
@@ -53,23 +56,46 @@ def _bank_kernel(x, base_sample, blocks, rows, first, bank_step, lags, lanes, wi
         if start < 0 or start + n > x.size:
             for k in range(n_lags):
                 out[m, k] = np.nan
+            out_power[m] = np.nan
             continue
         s_max = sub_block_samples(step, bank_step)
         fill_lanes(lanes, blocks[m, 5], s_max, -1.0)
         acc_re[:] = 0.0
         acc_im[:] = 0.0
+        power = 0.0
         k0 = 0
         while k0 < n:
             s = min(s_max, n - k0)
             rot = np.exp(-2j * np.pi * (blocks[m, 4] + k0 * blocks[m, 5]))
             c0r, c0i = np.float32(rot.real), np.float32(rot.imag)
             xs = x[start + k0:start + k0 + s]
+            pw = np.float32(0.0)
             for j in range(s):
                 v = xs[j]
                 ln = lanes[j]
                 cr = c0r * ln.real - c0i * ln.imag
                 ci = c0r * ln.imag + c0i * ln.real
-                wiped[j] = complex(v.real * cr - v.imag * ci, v.real * ci + v.imag * cr)
+                wr, wi = v.real * cr - v.imag * ci, v.real * ci + v.imag * cr
+                wiped[j] = complex(wr, wi)
+            if add.size:
+                ar, ai = np.float32(add[m].real), np.float32(add[m].imag)
+                own = replica(rows, first, bank_step, cp, step, k0, s)
+                for j in range(s):
+                    c = np.float32(own[j])
+                    w = wiped[j]
+                    wr, wi = w.real + c * ar, w.imag + c * ai
+                    if both_images:   # conj(add) code conj(carrier)^2: the mirror image, wiped
+                        ln = lanes[j]
+                        cr = c0r * ln.real - c0i * ln.imag
+                        ci = c0r * ln.imag + c0i * ln.real
+                        qr, qi = cr * cr - ci * ci, 2 * cr * ci
+                        wr += c * (ar * qr + ai * qi)
+                        wi += c * (ar * qi - ai * qr)
+                    wiped[j] = complex(wr, wi)
+            for j in range(s):
+                w = wiped[j]
+                pw += w.real * w.real + w.imag * w.imag
+            power += pw
             for k in range(n_lags):
                 code = replica(rows, first, bank_step, cp + lags[k], step, k0, s)
                 sr = si = np.float32(0.0)
@@ -82,31 +108,44 @@ def _bank_kernel(x, base_sample, blocks, rows, first, bank_step, lags, lanes, wi
             k0 += s
         for k in range(n_lags):
             out[m, k] = complex(acc_re[k], acc_im[k]) / n
+        out_power[m] = power / n
 
 
-def correlator_bank(x: np.ndarray, base_sample: int, blocks: np.ndarray, bank: CodeBank,
-                    lags: np.ndarray) -> np.ndarray:
+def correlator_bank(x: np.ndarray, base_sample: int, blocks: np.ndarray, bank: CodeBank, lags: np.ndarray,
+                    add: np.ndarray | None = None, both_images: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """(blocks, lags): each code period's correlation with the spoofer's replica (tracking's blocks) moved by each
-    lag, divided by the period's samples: a signal of amplitude a at offset d gives about a r(lag - d)."""
+    lag, divided by the period's samples: a signal of amplitude a at offset d gives about a r(lag - d); and (blocks):
+    each period's mean sample power. add: amplitudes per block of the replica itself, added to x as it is read (x
+    is not written: a cancelled spoofer looked at again without a copy)."""
     out = np.empty((len(blocks), len(lags)), dtype=np.complex128)
+    power = np.empty(len(blocks))
     wiped = np.empty(MAX_SUB_SAMPLES, dtype=np.complex64)
+    add = np.empty(0, dtype=np.complex128) if add is None else np.asarray(add, dtype=np.complex128)
     _bank_kernel(x, base_sample, blocks, bank.rows, bank.first, bank.step_chips, np.asarray(lags, dtype=np.float64),
-                 lane_buffer(), wiped, out)
-    return out
+                 lane_buffer(), wiped, add, both_images, out, power)
+    return out, power
 
 
-def correlator_bank_reference(x: np.ndarray, base_sample: int, blocks, prn: int, lags) -> np.ndarray:
+def correlator_bank_reference(x: np.ndarray, base_sample: int, blocks, prn: int, lags, add=None,
+                              both_images: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """The same with numpy, the exact code phase and an exact exponential (slow; for tests)."""
     code = ca_code(prn).astype(np.float64)
     out = np.full((len(blocks), len(lags)), np.nan, dtype=np.complex128)
+    power = np.full(len(blocks), np.nan)
     for m, (first, n, cp, step, ph, pstep) in enumerate(blocks):
         start, k = int(first) - base_sample, np.arange(int(n))
         if start < 0 or start + int(n) > x.size:
             continue
-        wiped = x[start:start + int(n)] * np.exp(-2j * np.pi * (ph + k * pstep))
+        carrier = np.exp(2j * np.pi * (ph + k * pstep))
+        seen = x[start:start + int(n)].astype(np.complex128)
+        if add is not None:
+            own = add[m] * code[np.floor(cp + k * step).astype(np.int64) % 1023] * carrier
+            seen = seen + (2 * own.real if both_images else own)
+        wiped = seen * np.conj(carrier)
+        power[m] = np.mean(np.abs(seen) ** 2)
         for i, lag in enumerate(lags):
             out[m, i] = np.sum(wiped * code[np.floor(cp + lag + k * step).astype(np.int64) % 1023]) / n
-    return out
+    return out, power
 
 
 AUTOCORRELATION_REACH_CHIPS = 4
@@ -185,9 +224,18 @@ def fit_two_paths(prn: int, y: np.ndarray, lags: np.ndarray, twin_guess_chips: f
         return None                                     # no pair on the twin's side: never across the spoofer
     fine = np.arange(-COARSE_CHIPS, COARSE_CHIPS + 1e-9, FINE_CHIPS)
     u, v, _ = _best(prn, u + fine, v + fine, lags, s_re, side)
+    return paths_at(prn, y, lags, u, v)
+
+
+def paths_at(prn: int, y: np.ndarray, lags: np.ndarray, u: float, v: float) -> TwoPaths:
+    """Both paths at known offsets u and v: each period's two amplitudes by least squares from its correlations
+    y (periods, lags), nan for a period with a correlation missing. With the two lags at u and v this is each
+    path's matched filter, the two unmixed: all the buffer says of the amplitudes once the delays are known."""
+    ok = np.isfinite(y).all(axis=1)
     a = np.column_stack([code_correlation(prn, lags - u), code_correlation(prn, lags - v)])
     amps = np.full((len(y), 2), np.nan + 0j)
-    amps[ok] = np.linalg.solve(a.T @ a, a.T @ yy.T).T
+    if ok.any():
+        amps[ok] = np.linalg.solve(a.T @ a, a.T @ y[ok].T).T
     return TwoPaths(u, v, amps[:, 0], amps[:, 1])
 
 
