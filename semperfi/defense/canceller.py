@@ -30,6 +30,8 @@ def _subtract_kernel(x, base_sample, blocks, amplitudes, rows, first, bank_step,
         ph, pstep = blocks[m, 4], blocks[m, 5]
         a = amplitudes[m]
         lo, hi = max(0, -start), min(n, x.size - start)
+        if hi <= lo:   # a block wholly outside x (a thread's span holds only part of the buffer)
+            continue
         s_max = sub_block_samples(step, bank_step)
         fill_lanes(lanes, pstep, s_max, 1.0)
         # sub-blocks on the block's own grid of s_max samples, each read whole from the bank: a block cut by the
@@ -612,7 +614,9 @@ class CancellerStage:
         # the chunk joins the raw buffer the tracks read, then, on a worker beside the tracks, the buffer subtracted
         # from: under attack the main thread's share of a stage bounds the run. One copy at a time: both at once took
         # 20-30 MB more at the peak (10 MSa/s, every PRN spoofed)
-        self._raw = np.concatenate([self._raw, chunk])
+        # (nothing held: the chunk itself, which is never written -- the guard's start-up hands over its first 0.3 s
+        # at once, and a copy of it was 24 MB more at the peak at 10 MSa/s)
+        self._raw = np.concatenate([self._raw, chunk]) if self._raw.size else chunk
         held = self._work
         work = np.empty(held.size + chunk.size, dtype=np.complex64)
 
