@@ -56,3 +56,34 @@ def test_the_twin_summary_reads_each_prns_first_stage_from_cleans_report():
               13: [{"stage": 0, "attenuation_db": [], "legit_offset_chips": 1.256}]}
     assert twin_summary(report) == {"7": {"offset_chips": -0.378, "advantage_db": 10.9, "attenuation_db": 25.2},
                                     "13": {"offset_chips": 1.256, "advantage_db": None, "attenuation_db": None}}
+
+
+def _plugin_grid():
+    """scripts/plugin-grid, imported (it has no .py suffix)."""
+    import importlib.machinery
+    import importlib.util
+    from pathlib import Path
+    path = Path(__file__).parents[1] / "scripts" / "plugin-grid"
+    loader = importlib.machinery.SourceFileLoader("plugin_grid", str(path))
+    module = importlib.util.module_from_spec(importlib.util.spec_from_loader("plugin_grid", loader))
+    loader.exec_module(module)
+    return module
+
+
+def test_the_grid_holds_gnss_sdrs_runs_on_the_recordings_without_an_attacker_to_the_same_test():
+    """A cell fails when any GNSS-SDR run on its cleaned file does (first fix held to the median of the runs
+    without an attacker); over the grid, the runs on the recordings without an attacker are counted by the same
+    test against their own median, so a first fix that comes late on files nobody cleaned shows as often."""
+    grid = _plugin_grid()
+
+    def run(first_fix_s, last_m=2.5, epochs=0.99):
+        return {"fixes": 240, "first_fix_s": first_fix_s, "last_mean_m": last_m, "epochs_fixed": epochs}
+    ours = {"semperfi --defense off": {"cleaned": {"fixes": 478, "last_mean_m": 0.2}}}
+    late_cleaned = {"case": "a", "fixes": ours, "gnss_sdr_runs": {"reference": [run(35.1), run(35.2), run(53.1)],
+                                                                    "cleaned": [run(35.2), run(53.2), run(35.1)]}}
+    good = {"case": "b", "fixes": ours, "gnss_sdr_runs": {"reference": [run(35.1), run(35.1), run(35.2)],
+                                                            "cleaned": [run(35.2), run(35.1), run(35.3, epochs=0.96)]}}
+    far = {"case": "c", "fixes": ours, "gnss_sdr_runs": {"reference": [run(35.1)], "cleaned": [run(35.1, last_m=5.5)]}}
+    assert [grid.verdict(c) for c in (late_cleaned, good, far)] == ["FAIL", "pass", "FAIL"]
+    assert grid.runs_passing([late_cleaned, good, far, {"case": "d", "error": "x"}]) == {
+        "cleaned": (5, 7), "reference": (6, 7)}
