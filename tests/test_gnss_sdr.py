@@ -102,3 +102,21 @@ def test_plug_in_filter_output_makes_gnss_sdr_fix_the_truth(tmp_path, brdc_path)
     # GNSS-SDR's single-epoch fixes scatter (up to 7.6 m on a clean 45 dB-Hz file, more when it drops to four
     # satellites after a loss of lock): the claim is held on their mean
     assert np.mean(err) < 10.0, summary
+
+
+def test_gnss_sdr_is_configured_for_real_samples_at_an_if():
+    """A real recording at an IF (int16, as `clean` writes one back): the file source reads shorts, the adapter
+    passes them through and the input filter mixes them to complex baseband (its low-pass takes the mirror image
+    away); real samples without an IF have no baseband to be read as, and are refused."""
+    from semperfi.eval.gnss_sdr import gnss_sdr_config
+    lines = gnss_sdr_config("/tmp/r.bin", 10.4e6, "short", 2.6e6).splitlines()
+    for line in ("SignalSource.item_type=short", "DataTypeAdapter.implementation=Pass_Through",
+                 "DataTypeAdapter.item_type=short", "InputFilter.implementation=Freq_Xlating_Fir_Filter",
+                 "InputFilter.input_item_type=short", "InputFilter.output_item_type=gr_complex",
+                 "InputFilter.IF=2600000"):
+        assert line in lines, line
+    complex_lines = gnss_sdr_config("/tmp/c.bin", 4e6, "gr_complex", 0.0).splitlines()
+    assert "DataTypeAdapter.item_type=gr_complex" in complex_lines
+    assert "InputFilter.implementation=Pass_Through" in complex_lines
+    with pytest.raises(ValueError, match="need an IF"):
+        gnss_sdr_config("/tmp/r.bin", 10.4e6, "short", 0.0)

@@ -28,8 +28,10 @@ CONFIG_NAME = "gnss-sdr_semperfi.conf"
 LOG_NAME = "gnss-sdr.log"              # GNSS-SDR's stdout + stderr
 OUTPUT_STEM = "gnss_sdr_pvt"           # GNSS-SDR names its KML/GPX/GeoJSON '<PVT.dump_filename>_YYMMDD_HHMMSS.*'
 NMEA_NAME = OUTPUT_STEM + ".nmea"      # PVT.nmea_dump_filename; found again by globbing *.nmea
-ITEM_TYPES = ("ishort", "ibyte", "gr_complex")
-_DATA_TYPE_ADAPTER = {"ishort": "Ishort_To_Complex", "ibyte": "Ibyte_To_Complex", "gr_complex": "Pass_Through"}
+ITEM_TYPES = ("ishort", "ibyte", "gr_complex", "short")
+_DATA_TYPE_ADAPTER = {"ishort": "Ishort_To_Complex", "ibyte": "Ibyte_To_Complex", "gr_complex": "Pass_Through",
+                      "short": "Pass_Through"}
+REAL_ITEM_TYPES = ("short",)   # real samples at an IF: the input filter mixes them to complex baseband
 IONO_MODELS = ("OFF", "Broadcast", "SBAS", "Iono-Free-LC", "Estimate_STEC", "IONEX")
 TROP_MODELS = ("OFF", "Saastamoinen", "SBAS", "Estimate_ZTD", "Estimate_ZTD_Grad")
 
@@ -77,8 +79,9 @@ def gnss_sdr_config(data_file: str | os.PathLike, fs_hz: float, item_type: str, 
     """A complete GNSS-SDR 0.0.17 configuration for GPS L1 C/A from `data_file`.
 
     `item_type` is GNSS-SDR's name of the sample format ('ishort' = interleaved int16 I/Q, 'ibyte' = int8 I/Q,
-    'gr_complex' = complex64). `if_hz` is where L1 sits in the complex band (the signal is multiplied by
-    exp(-j 2 pi if_hz t) before acquisition); 0 uses a pass-through filter. NMEA, GPX, KML and GeoJSON go to
+    'gr_complex' = complex64, 'short' = real int16 at an IF). `if_hz` is where L1 sits in the band (the signal is
+    multiplied by exp(-j 2 pi if_hz t) and low-passed before acquisition, which takes a real signal's mirror
+    image away too); 0 uses a pass-through filter (complex samples only). NMEA, GPX, KML and GeoJSON go to
     `out_dir` (as written: relative to where GNSS-SDR runs); RINEX 3 observations and navigation too when `rinex`;
     XML ephemeris dumps and RTCM are off.
     """
@@ -92,6 +95,9 @@ def gnss_sdr_config(data_file: str | os.PathLike, fs_hz: float, item_type: str, 
     if_hz = float(if_hz)
     if not math.isfinite(if_hz) or abs(if_hz) >= fs / 2:
         raise ValueError(f"if_hz must be finite and inside +-fs/2 (+-{fs / 2:g} Hz), got {if_hz!r}")
+    real = item_type in REAL_ITEM_TYPES
+    if real and if_hz == 0.0:
+        raise ValueError(f"real samples ({item_type!r}) need an IF: if_hz is 0")
     channels = int(channels)
     if not 1 <= channels <= 64:
         raise ValueError(f"channels must be 1..64, got {channels}")
@@ -118,7 +124,7 @@ def gnss_sdr_config(data_file: str | os.PathLike, fs_hz: float, item_type: str, 
         pass_edge = min(0.9, max(0.5, 2.0 * 1.2e6 / fs))
         input_filter = [
             "InputFilter.implementation=Freq_Xlating_Fir_Filter",
-            "InputFilter.input_item_type=gr_complex",
+            f"InputFilter.input_item_type={item_type if real else 'gr_complex'}",
             "InputFilter.output_item_type=gr_complex",
             "InputFilter.taps_item_type=float",
             f"InputFilter.sampling_frequency={fs}",
@@ -143,7 +149,7 @@ def gnss_sdr_config(data_file: str | os.PathLike, fs_hz: float, item_type: str, 
     adapter = _DATA_TYPE_ADAPTER[item_type]
     adapter_lines = [f"DataTypeAdapter.implementation={adapter}"]
     if adapter == "Pass_Through":
-        adapter_lines.append("DataTypeAdapter.item_type=gr_complex")
+        adapter_lines.append(f"DataTypeAdapter.item_type={item_type}")
 
     rate = str(output_rate_ms)
     lines = [
