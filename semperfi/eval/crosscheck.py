@@ -24,7 +24,7 @@ import pymap3d
 
 from ..errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, BadInput
 from ..iq import format_by_name, format_by_sigmf_datatype
-from .gnss_sdr import (ITEM_TYPES, IONO_MODELS, TROP_MODELS, LOG_NAME, Fix, error_summary_m, fixes_ecef,
+from .gnss_sdr import (COMPLEX_ITEM_TYPES, IONO_MODELS, TROP_MODELS, LOG_NAME, Fix, error_summary_m, fixes_ecef,
                        gnss_sdr_version, horizontal_errors_m, run_gnss_sdr)
 from .metrics import errors
 
@@ -122,7 +122,8 @@ _PATH = click.Path(path_type=Path)
               help="also compare each fix with the truth position at the fix's time (moving receivers)")
 # GNSS-SDR's own three item types, not semperfi's --format (cli._input_options): it reads no other layout
 @click.option("--fs", "fs_hz", type=float, metavar="HZ", help="sample rate (default: from the sidecar)")
-@click.option("--format", "item_type", type=click.Choice(ITEM_TYPES), help="sample format (default: from the sidecar)")
+@click.option("--format", "item_type", type=click.Choice(COMPLEX_ITEM_TYPES),
+              help="sample format (default: from the sidecar)")
 @click.option("--if", "if_hz", type=float, metavar="HZ", help="IF, Hz (default: sidecar, else 0)")
 @click.option("--out-dir", type=_PATH, help="where GNSS-SDR runs and writes (default: <stem>.gnss-sdr/)")
 @click.option("--timeout", "timeout_s", type=float, metavar="S",
