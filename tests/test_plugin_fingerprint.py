@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from script_modules import load_script
 from semperfi.eval.plugin import SPOOFED_M, Ranges, range_differences, read_ranges
 from semperfi.receiver.rinex_obs import ObsEpoch, write_rinex_obs
 
@@ -58,23 +59,11 @@ def test_the_twin_summary_reads_each_prns_first_stage_from_cleans_report():
                                     "13": {"offset_chips": 1.256, "advantage_db": None, "attenuation_db": None}}
 
 
-def _plugin_grid():
-    """scripts/plugin-grid, imported (it has no .py suffix)."""
-    import importlib.machinery
-    import importlib.util
-    from pathlib import Path
-    path = Path(__file__).parents[1] / "scripts" / "plugin-grid"
-    loader = importlib.machinery.SourceFileLoader("plugin_grid", str(path))
-    module = importlib.util.module_from_spec(importlib.util.spec_from_loader("plugin_grid", loader))
-    loader.exec_module(module)
-    return module
-
-
 def test_the_grid_holds_gnss_sdrs_runs_on_the_recordings_without_an_attacker_to_the_same_test():
     """A cell fails when any GNSS-SDR run on its cleaned file does (first fix held to the median of the runs
     without an attacker); over the grid, the runs on the recordings without an attacker are counted by the same
     test against their own median, so a first fix that comes late on files nobody cleaned shows as often."""
-    grid = _plugin_grid()
+    grid = load_script("plugin-grid")
 
     def run(first_fix_s, last_m=2.5, epochs=0.99):
         return {"fixes": 240, "first_fix_s": first_fix_s, "last_mean_m": last_m, "epochs_fixed": epochs}
