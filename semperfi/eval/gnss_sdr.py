@@ -29,10 +29,10 @@ LOG_NAME = "gnss-sdr.log"              # GNSS-SDR's stdout + stderr
 OUTPUT_STEM = "gnss_sdr_pvt"           # GNSS-SDR names its KML/GPX/GeoJSON '<PVT.dump_filename>_YYMMDD_HHMMSS.*'
 NMEA_NAME = OUTPUT_STEM + ".nmea"      # PVT.nmea_dump_filename; found again by globbing *.nmea
 COMPLEX_ITEM_TYPES = ("ishort", "ibyte", "gr_complex")
-ITEM_TYPES = (*COMPLEX_ITEM_TYPES, "short")
+REAL_ITEM_TYPES = ("short",)   # real samples at an IF: the input filter mixes them to complex baseband
+ITEM_TYPES = (*COMPLEX_ITEM_TYPES, *REAL_ITEM_TYPES)
 _DATA_TYPE_ADAPTER = {"ishort": "Ishort_To_Complex", "ibyte": "Ibyte_To_Complex", "gr_complex": "Pass_Through",
                       "short": "Pass_Through"}
-REAL_ITEM_TYPES = ("short",)   # real samples at an IF: the input filter mixes them to complex baseband
 IONO_MODELS = ("OFF", "Broadcast", "SBAS", "Iono-Free-LC", "Estimate_STEC", "IONEX")
 TROP_MODELS = ("OFF", "Saastamoinen", "SBAS", "Estimate_ZTD", "Estimate_ZTD_Grad")
 
