@@ -15,3 +15,33 @@ def ca_signal(prn: int, t_s: np.ndarray, code_phase_chips: float, doppler_hz: fl
     if bits is not None:
         out = out * bits[np.floor(chips / 1023 / 20).astype(np.int64) % bits.size]
     return out
+
+
+def behind_front_end(fs_hz: float, cutoff_hz: float, duration_s: float, legit: list[tuple], spoofers: list[tuple],
+                     amplitude: float, advantage_db: float, seed: int = 1, up: int = 4
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """(with the spoofers, without) as a real front end delivers them: rendered `up` times faster with unit noise,
+    through a 5th-order Butterworth low-pass of cutoff_hz (0: none, ideal chips) and decimated to fs_hz -- chips
+    rounded as an analog filter before a sampler rounds them. legit and spoofers: (prn, code phase chips, Doppler
+    Hz, phase rad) each, amplitude per sample at fs_hz for unit noise per component."""
+    from scipy.signal import butter, sosfilt
+    rng = np.random.default_rng(seed)
+    fast = fs_hz * up
+    sos = butter(5, cutoff_hz, fs=fast, output="sos") if cutoff_hz else None
+    state = [np.zeros((sos.shape[0], 2), dtype=complex) if sos is not None else None for _ in range(2)]
+    gain = 10 ** (advantage_db / 20)
+    out: list[list[np.ndarray]] = [[], []]
+    chunk = int(round(0.1 * fast))
+    for a in range(0, int(round(duration_s * fast)), chunk):
+        t = (a + np.arange(chunk)) / fast
+        clean = (rng.standard_normal(chunk) + 1j * rng.standard_normal(chunk)) * np.sqrt(up)
+        for prn, cp, dop, ph in legit:
+            clean += ca_signal(prn, t, cp, dop, amplitude, ph)
+        attacked = clean.copy()
+        for prn, cp, dop, ph in spoofers:
+            attacked += ca_signal(prn, t, cp, dop, amplitude * gain, ph)
+        for i, v in enumerate((attacked, clean)):
+            if sos is not None:
+                v, state[i] = sosfilt(sos, v, zi=state[i])
+            out[i].append(v[::up].astype(np.complex64))
+    return np.concatenate(out[0]), np.concatenate(out[1])

@@ -16,9 +16,11 @@ from ..gps import (CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, CA_CODE_PERIOD_S, L1_H
                   chips_offset)
 from ..receiver import (Channel, CodeBank, DopplerGrid, LoopConfig, NEXT_SAMPLE, Peak, acquire, cores, fill_lanes,
                         initial_state, lane_buffer, replica, run_each, sub_block_samples)
-from .twopath_track import TwoPaths, bank_lags, code_correlation, correlator_bank, fit_two_paths, paths_at
+from .chip_shape import LAGS_CHIPS, RECTANGULAR, TAP_REACH_CHIPS, ChipShape, ChipShapeMeter, shaped_bank
+from .twopath_track import TwoPaths, bank_lags, correlator_bank, fit_two_paths, paths_at
 
 MEASURE_EVERY = 8                 # code periods per attenuation measurement
+MEASURED_WITHIN_DB = 6.0          # the spoofers that measure the front end's chips: this close to the strongest
 
 
 @njit(cache=True, nogil=True, fastmath=True)
@@ -99,9 +101,10 @@ def subtract_replicas(x: np.ndarray, base_sample: int, blocks: np.ndarray, ampli
     code moved by offset_chips).
 
     both_images: x holds real samples at an IF, where a signal is there twice (at +IF, which tracking measured, and
-    its mirror at -IF); subtract the real signal, 2 Re(replica), so the result is real and free of both."""
-    _subtract_kernel(x, base_sample, blocks, amplitudes.astype(np.complex128), bank.rows, bank.first, bank.step_chips,
-                     offset_chips, lane_buffer(), both_images)
+    its mirror at -IF); subtract the real signal, 2 Re(replica), so the result is real and free of both. bank: the
+    code as it is subtracted (a shaped bank: as the front end delivers it, chip_shape)."""
+    _subtract_kernel(x, base_sample, blocks, amplitudes.astype(np.complex128) / bank.scale, bank.rows, bank.first,
+                     bank.step_chips, offset_chips, lane_buffer(), both_images)
 
 
 def residuals(x: np.ndarray, base_sample: int, blocks: np.ndarray, bank: CodeBank,
@@ -125,8 +128,8 @@ def noise_power(power: np.ndarray, blocks: np.ndarray) -> float:
 
 
 @njit(cache=True, nogil=True)
-def _overlap_kernel(blocks, rows, first, bank_step, offset_chips, out):
-    """out[m]: block m's replica times the same replica moved by offset_chips, summed / samples."""
+def _overlap_kernel(blocks, rows, first, bank_step, moved_rows, offset_chips, out):
+    """out[m]: block m's replica times the replica from moved_rows moved by offset_chips, summed / samples."""
     for m in range(blocks.shape[0]):
         n, cp, step = np.int64(blocks[m, 1]), blocks[m, 2], blocks[m, 3]
         s_max = sub_block_samples(step, bank_step)
@@ -135,42 +138,44 @@ def _overlap_kernel(blocks, rows, first, bank_step, offset_chips, out):
         while k0 < n:
             s = min(s_max, n - k0)
             here = replica(rows, first, bank_step, cp, step, k0, s)
-            moved = replica(rows, first, bank_step, cp + offset_chips, step, k0, s)
+            moved = replica(moved_rows, first, bank_step, cp + offset_chips, step, k0, s)
             for j in range(s):
                 acc += np.int64(here[j]) * np.int64(moved[j])
             k0 += s
         out[m] = acc / n
 
 
-def code_overlap(blocks: np.ndarray, bank: CodeBank, offset_chips: float) -> np.ndarray:
-    """Per block: what a unit signal on the replica moved by offset_chips gives at the replica itself, the
-    replicas exactly as the kernels build them (a twin's share of its spoofer's prompt)."""
+def code_overlap(blocks: np.ndarray, bank: CodeBank, offset_chips: float,
+                 moved_bank: CodeBank | None = None) -> np.ndarray:
+    """Per block: what a unit signal on the replica moved by offset_chips (its chips from moved_bank: shaped as
+    received) gives at the replica itself, the replicas exactly as the kernels build them (a twin's share of its
+    spoofer's prompt)."""
+    moved_bank = bank if moved_bank is None else moved_bank
     out = np.empty(len(blocks))
-    _overlap_kernel(blocks, bank.rows, bank.first, bank.step_chips, float(offset_chips), out)
-    return out
+    _overlap_kernel(blocks, bank.rows, bank.first, bank.step_chips, moved_bank.rows, float(offset_chips), out)
+    return out / moved_bank.scale
 
 
-def code_overlap_reference(blocks, prn: int, offset_chips: float) -> np.ndarray:
+def code_overlap_reference(blocks, prn: int, offset_chips: float, shape: ChipShape = RECTANGULAR) -> np.ndarray:
     """The same with numpy and the exact code phase (slow; for tests)."""
     code = ca_code(prn).astype(np.float64)
     out = np.empty(len(blocks))
     for m, (_, n, cp, step, _, _) in enumerate(blocks):
         k = np.arange(int(n))
         here = code[np.floor(cp + k * step).astype(np.int64) % 1023]
-        out[m] = np.mean(here * code[np.floor(cp + offset_chips + k * step).astype(np.int64) % 1023])
+        out[m] = np.mean(here * shape.values(prn, cp + offset_chips + k * step))
     return out
 
 
-def replicas_reference(n_samples: int, base_sample: int, blocks, amplitudes, prn: int) -> np.ndarray:
+def replicas_reference(n_samples: int, base_sample: int, blocks, amplitudes, prn: int,
+                       shape: ChipShape = RECTANGULAR) -> np.ndarray:
     """The same replicas with numpy and an exact exponential (slow; for tests)."""
     out = np.zeros(n_samples, dtype=np.complex128)
-    code = ca_code(prn)
     for (first, n, cp, step, ph, pstep), a in zip(blocks, amplitudes):
         k = np.arange(int(n))
         idx = int(first) - base_sample + k
         ok = (idx >= 0) & (idx < n_samples)
-        chips = np.floor(cp + k * step).astype(np.int64) % 1023
-        out[idx[ok]] += (a * code[chips] * np.exp(2j * np.pi * (ph + k * pstep)))[ok]
+        out[idx[ok]] += (a * shape.values(prn, cp + k * step) * np.exp(2j * np.pi * (ph + k * pstep)))[ok]
     return out
 
 
@@ -267,6 +272,10 @@ JOINT_WITHIN_CHIPS = 1.2
 # -1.3 to -1.4 m).
 LEAKING_WITHIN_CHIPS = 1.5
 LEAKING_SHARE = 0.01
+# Rounded chips (a front end's, chip_shape) spread each signal's correlation further: a twin up to this much further
+# off leaks, and pulls its spoofer's early-late balance (GPS-SDR-SIM behind a 1 MHz front end, 1 km: spoofers 0.01-0.05
+# chip off their replicas, twins 1-2 chips away)
+SHAPED_REACH_CHIPS = TAP_REACH_CHIPS
 BACKFILL_COHERENT_WITHIN_CHIPS_S = 0.5   # the DLL's code rate and the carrier's, apart by less: the carrier's
 TWIN_GAIN = 0.5                   # fraction of each buffer's measured twin offset error applied
 # A legitimate signal within BIASED_WITHIN_CHIPS of its spoofer keeps, after cancellation, the spoofer's residual
@@ -303,8 +312,10 @@ class AdversaryTrack:
     """
 
     def __init__(self, prn: int, fs_hz: float, if_hz: float, peak: Peak, peak_sample: int, start_after_sample: int,
-                 cfg: CancellerConfig, stage: int, legit_offset_chips: float | None = None):
+                 cfg: CancellerConfig, stage: int, legit_offset_chips: float | None = None,
+                 front_end: ChipShapeMeter | None = None):
         self.prn, self.stage, self.cfg = prn, stage, cfg
+        self.front_end = front_end     # the chips' shape as received (rectangular without one)
         self.legit_offset_chips = legit_offset_chips
         loop = LoopConfig(pll_bw_hz=cfg.pll_bw_hz, dll_bw_hz=cfg.dll_bw_hz, pull_in_ms=cfg.pull_in_ms,
                           min_cn0_dbhz=20.0, dll_narrow_bw_hz=cfg.narrow_dll_bw_hz,
@@ -332,6 +343,15 @@ class AdversaryTrack:
     def next_sample(self) -> float:
         return float(self.channel.st[NEXT_SAMPLE])
 
+    @property
+    def shape(self) -> ChipShape:
+        return RECTANGULAR if self.front_end is None else self.front_end.shape
+
+    @property
+    def subtract_bank(self) -> CodeBank:
+        """The code as it is subtracted: shaped as the front end delivers it (tracking keeps rectangular chips)."""
+        return shaped_bank(self.prn, self.channel.fs_hz, self.shape)
+
     def track(self, tracked: np.ndarray, base_sample: int) -> None:
         """The tracking half: reads samples only, so several tracks can run at once (the kernels release the GIL)."""
         first_ms = self.channel.ms
@@ -354,7 +374,7 @@ class AdversaryTrack:
             without_legit = np.array(tracked[start:], copy=True)
             subtract_replicas(without_legit, base_sample + start, blocks,
                               self._legit_amplitudes(paths.twin_amplitudes, update=not self.settled),
-                              self.channel.bank, offset_chips=paths.twin_offset_chips)
+                              self.subtract_bank, offset_chips=paths.twin_offset_chips)
             self.channel = before
             prompts, _ = self.channel.process(without_legit, base_sample + start)
             blocks = self.channel.last_blocks
@@ -379,7 +399,8 @@ class AdversaryTrack:
         self._twin_lag = paths.twin_offset_chips
         self.legit_offset_chips += TWIN_GAIN * (paths.separation_chips - self.legit_offset_chips)
         # the spoofer's prompt less the twin's share of it: the residual at the replica, the twin subtracted
-        beta = prompt - self._legit_est * code_overlap(blocks, self.channel.bank, paths.twin_offset_chips)
+        beta = prompt - self._legit_est * code_overlap(blocks, self.channel.bank, paths.twin_offset_chips,
+                                                       self.subtract_bank)
         beta = np.where(np.isfinite(beta), beta, est)
         again, self._ref = decision_smooth(beta, self._ref_start, self._lam)
         return again - est
@@ -402,12 +423,13 @@ class AdversaryTrack:
         track's replica amplitudes, added back to x as it is read (x less every spoofer, this one's put back)."""
         crossing = self._crossing()
         lags = np.zeros(1) if crossing else np.append(bank_lags(self.legit_offset_chips), 0.0)
-        y, power = correlator_bank(x, base_sample, blocks, self.channel.bank, lags, add, self.cfg.real_samples)
+        y, power = correlator_bank(x, base_sample, blocks, self.channel.bank, lags, add, self.cfg.real_samples,
+                                   self.subtract_bank)
         prompt = y[:, -1]
         if crossing:
             return self._split_by_carrier(prompt), prompt
         return fit_two_paths(self.prn, y[:, :-1], lags[:-1], self.legit_offset_chips,
-                             noise_power(power, blocks)), prompt
+                             noise_power(power, blocks), self.shape), prompt
 
     def _twin_where_carried(self, x: np.ndarray, base_sample: int, blocks: np.ndarray) -> TwoPaths | None:
         """A settled track's twin for its first tracking pass, at the offset carried from the last buffer's fit, the
@@ -419,7 +441,7 @@ class AdversaryTrack:
         y, _ = correlator_bank(x, base_sample, blocks, self.channel.bank, lags)
         if crossing:
             return self._split_by_carrier(y[:, 0])
-        return paths_at(self.prn, y, lags, 0.0, float(self.legit_offset_chips))
+        return paths_at(self.prn, y, lags, 0.0, float(self.legit_offset_chips), self.shape)
 
     def _split_by_carrier(self, z: np.ndarray) -> TwoPaths | None:
         """A twin crossing its spoofer (CROSSING_CHIPS), at its predicted offset: the prompt per period is
@@ -444,7 +466,7 @@ class AdversaryTrack:
         spoofer = np.full(z.size, np.nan + 0j)
         twin = np.full(z.size, np.nan + 0j)
         spoofer[ok] = bits[ok] * s_amp
-        leak = code_correlation(self.prn, self.legit_offset_chips)
+        leak = self.shape.correlation(self.prn, self.legit_offset_chips)
         twin[ok] = bits[ok] * relative * t_amp * turning[ok] / leak
         return TwoPaths(0.0, float(self.legit_offset_chips), spoofer, twin)
 
@@ -481,8 +503,9 @@ class AdversaryTrack:
         offset = self.legit_offset_chips
         if offset is None:
             return False
+        reach = LEAKING_WITHIN_CHIPS + (0.0 if self.shape.rectangular else SHAPED_REACH_CHIPS)
         return abs(offset) < JOINT_WITHIN_CHIPS or (
-            abs(offset) < LEAKING_WITHIN_CHIPS and abs(code_correlation(self.prn, offset)) >= LEAKING_SHARE)
+            abs(offset) < reach and abs(self.shape.correlation(self.prn, offset)) >= LEAKING_SHARE)
 
     def prepare(self, work: np.ndarray, base_sample: int) -> tuple | None:
         """The cancelling half (its stage subtracts, then measure()): the replicas track() measured, as (blocks,
@@ -549,7 +572,7 @@ class AdversaryTrack:
         bit = 1.0 if (settled_est * np.conj(self._ref)).real >= 0 else -1.0
         turn = rotation_per_period(beta[ok])
         est, _ = decision_smooth(beta[ok], settled_est * bit, self._lam, 1.0 if turn is None else turn)
-        subtract_replicas(work, base_sample, blocks[ok], est, self.channel.bank, self.cfg.real_samples)
+        subtract_replicas(work, base_sample, blocks[ok], est, self.subtract_bank, self.cfg.real_samples)
 
     def _measure(self, work, base_sample, blocks, est, legit=None) -> None:
         """What is left at the replica: the attenuation this track achieves (noise-corrected powers).
@@ -564,7 +587,7 @@ class AdversaryTrack:
         blocks, est = blocks[pick], est[pick]
         beta, power = residuals(work, base_sample, blocks, self.channel.bank)
         if legit is not None:   # a legitimate signal within a chip is seen at the replica too: not a residual
-            beta = beta - code_correlation(self.prn, self._twin_lag) * legit[pick]
+            beta = beta - self.shape.correlation(self.prn, self._twin_lag) * legit[pick]
         ok = np.isfinite(power)
         self._acc_signal += float(np.sum(np.abs(est[ok]) ** 2))
         self._acc_residual += float(np.sum(np.abs(beta[ok]) ** 2))
@@ -593,6 +616,7 @@ class CancellerStage:
     if_hz: float
     index: int
     cfg: CancellerConfig = field(default_factory=CancellerConfig)
+    front_end: ChipShapeMeter | None = None   # measured by the first stage's tracks, read by every stage's
 
     def __post_init__(self):
         self.tracks: dict[int, AdversaryTrack] = {}
@@ -606,7 +630,7 @@ class CancellerStage:
 
     def add(self, peak: Peak, peak_sample: int, legit_offset_chips: float | None = None) -> AdversaryTrack:
         track = AdversaryTrack(peak.prn, self.fs_hz, self.if_hz, peak, peak_sample, self.end_sample, self.cfg,
-                               self.index, legit_offset_chips)
+                               self.index, legit_offset_chips, self.front_end)
         self.tracks[peak.prn] = track
         return track
 
@@ -628,6 +652,8 @@ class CancellerStage:
         longest_first = sorted(tracks, key=lambda item: not item[1]._joint())
         run_each(lambda item: join() if item is None else item[1].track(self._raw, self.base), [None, *longest_first])
         self._work = work
+        if self.index == 0 and self.front_end is not None and not self.front_end.done:
+            self._measure_front_end([tr for _, tr in tracks])
         planned = [(tr, tr.prepare(self._work, self.base)) for _, tr in tracks]
         planned = [(tr, p) for tr, p in planned if p is not None]
         work, base = self._work, self.base
@@ -637,7 +663,7 @@ class CancellerStage:
             # one thread over the whole buffer
             a, b = part
             for tr, (blocks, est) in planned:
-                subtract_replicas(work[a:b], base + a, blocks, est, tr.channel.bank, tr.cfg.real_samples)
+                subtract_replicas(work[a:b], base + a, blocks, est, tr.subtract_bank, tr.cfg.real_samples)
         run_each(subtract, _spans(work.size, cores()))
         # joint tracks look again without the other spoofers (each reads work), then their changes are subtracted
         deltas = run_each(lambda item: item[0].refit(work, base, item[1]), planned)
@@ -646,7 +672,7 @@ class CancellerStage:
             def correct(part: tuple[int, int]) -> None:
                 a, b = part
                 for tr, blocks, delta in again:
-                    subtract_replicas(work[a:b], base + a, blocks, delta, tr.channel.bank, tr.cfg.real_samples)
+                    subtract_replicas(work[a:b], base + a, blocks, delta, tr.subtract_bank, tr.cfg.real_samples)
             run_each(correct, _spans(work.size, cores()))
             planned = [(tr, (blocks, est if delta is None else est + delta))
                        for (tr, (blocks, est)), delta in zip(planned, deltas)]
@@ -662,6 +688,27 @@ class CancellerStage:
         self.base += n
         return out
 
+    def _measure_front_end(self, tracks: list[AdversaryTrack]) -> None:
+        """The first stage's settled spoofers, on the samples before any subtraction, measure the chips' shape (before
+        the replicas of this buffer and the held samples are subtracted with it)."""
+        def measure(tr: AdversaryTrack):
+            first_ms, prompts, blocks = tr._tracked
+            settled = first_ms + np.arange(prompts.size) >= self.cfg.pull_in_ms
+            if not settled.any():
+                return None
+            blocks, prompts = blocks[settled], prompts[settled]
+            y, power = correlator_bank(self._raw, self.base, blocks, tr.channel.bank, LAGS_CHIPS)
+            return tr, y, prompts / blocks[:, 1], noise_power(power, blocks), blocks[len(blocks) // 2]
+        # the strongest only: a spoofer 6 dB weaker brings a quarter of the SNR for the same cost (a 101-lag bank)
+        strongest = max((tr.channel.cn0_dbhz for tr in tracks if np.isfinite(tr.channel.cn0_dbhz)), default=np.nan)
+        tracks = [tr for tr in tracks if not tr.channel.cn0_dbhz < strongest - MEASURED_WITHIN_DB]
+        for seen in run_each(measure, tracks):
+            if seen is not None:
+                tr, y, amplitudes, noise, block = seen
+                self.front_end.add(tr.prn, y, amplitudes, noise, block,
+                                   tr.legit_offset_chips if tr._joint() else None)
+        self.front_end.fit_when_ready()
+
     def flush(self) -> np.ndarray:
         out = self._work
         self.base += out.size
@@ -676,6 +723,7 @@ class Canceller:
         self.fs_hz, self.if_hz, self.cfg = fs_hz, if_hz, cfg
         self.stages: list[CancellerStage] = []
         self._emitted = 0
+        self.front_end = ChipShapeMeter()
 
     @property
     def prns(self) -> set[int]:
@@ -689,7 +737,7 @@ class Canceller:
         if stage >= self.cfg.max_stages + (1 if removal else 0):
             return None
         while len(self.stages) <= stage:   # a new stage takes the previous one's output from its next sample on
-            st = CancellerStage(self.fs_hz, self.if_hz, len(self.stages), self.cfg)
+            st = CancellerStage(self.fs_hz, self.if_hz, len(self.stages), self.cfg, self.front_end)
             st.base = self.stages[-1].base if self.stages else self._emitted
             self.stages.append(st)
         offset = None

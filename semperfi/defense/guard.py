@@ -210,6 +210,7 @@ class SpoofGuard:
         self._looked: tuple[np.ndarray, int] | None = None   # the window the latest examination searched
         self._searched: tuple[int, dict] | None = None      # a quiet search's first sample and CAFs, for the next fit
         self._pending: tuple[_LookPlan, object] | None = None   # a look computed aside: its plan, its future
+        self._chip_shape_told = False
         self._apply_after = int(LOOK_APPLIED_AFTER_S * fs_hz)
 
     def _emit(self, kind: str, t_s: float, **fields) -> None:
@@ -254,6 +255,7 @@ class SpoofGuard:
             chunk = np.concatenate(self._held + [chunk])
             self._held = []
         cleaned = self.canceller.push(chunk)
+        self._tell_chip_shape()
         self._forget_lost(self._seen / self.fs_hz)
         self._cleaned += cleaned.size
         self._clean.push(cleaned)
@@ -265,6 +267,13 @@ class SpoofGuard:
             self._deep.push(cleaned)
         self._verify()
         return cleaned
+
+    def _tell_chip_shape(self) -> None:
+        """The front end's chip shape, once the canceller has measured it (chip_shape): an event."""
+        meter = self.canceller.front_end
+        if meter.done and not self._chip_shape_told:
+            self._chip_shape_told = True
+            self._emit("chip_shape", self._seen / self.fs_hz, **meter.as_event())
 
     def _quiet(self) -> bool:
         """Nothing at all seen of an attack (the most common case there is): no alarm, no pair waiting for its

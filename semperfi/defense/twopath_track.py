@@ -14,7 +14,6 @@ A grid search and a finer one around its best keep the cost independent of the n
 is one pass over the samples with every lag.
 """
 
-import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,6 +21,7 @@ from numba import njit
 
 from ..gps import ca_code
 from ..receiver import MAX_SUB_SAMPLES, CodeBank, fill_lanes, lane_buffer, replica, sub_block_samples
+from .chip_shape import RECTANGULAR, ChipShape, code_correlation
 
 LAG_STEP_CHIPS = 0.1        # bank spacing: the triangles' kinks of two paths 0.2 chip apart fall between coarser lags
 LAG_MARGIN_CHIPS = 0.8      # the bank reaches this far beyond both paths
@@ -41,12 +41,12 @@ def bank_lags(twin_offset_chips: float) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True, fastmath=True)
-def _bank_kernel(x, base_sample, blocks, rows, first, bank_step, lags, lanes, wiped, add, both_images, out,
+def _bank_kernel(x, base_sample, blocks, rows, first, bank_step, lags, lanes, wiped, add, add_rows, both_images, out,
                  out_power):
     """out[m, k]: block m's correlation with the replica moved by lags[k], / samples; out_power[m]: the block's mean
-    power; nan for a block not wholly in x. add (one per block, or none): the replica at lag 0 times add[m] is added
-    to the samples as they are read (both_images: its real part, twice). The carrier is wiped once per sub-block,
-    then each lag is one pass of multiply-adds over it."""
+    power; nan for a block not wholly in x. add (one per block, or none): the replica at lag 0 from add_rows (the
+    shape subtracted) times add[m] is added to the samples as they are read (both_images: its real part, twice). The
+    carrier is wiped once per sub-block, then each lag is one pass of multiply-adds over it."""
     n_lags = lags.size
     acc_re = np.empty(n_lags)
     acc_im = np.empty(n_lags)
@@ -79,7 +79,7 @@ def _bank_kernel(x, base_sample, blocks, rows, first, bank_step, lags, lanes, wi
                 wiped[j] = complex(wr, wi)
             if add.size:   # a loop of its own: merged into the wipe above, its branch cost 3-4 s of CPU a minute
                 ar, ai = np.float32(add[m].real), np.float32(add[m].imag)
-                own = replica(rows, first, bank_step, cp, step, k0, s)
+                own = replica(add_rows, first, bank_step, cp, step, k0, s)
                 for j in range(s):
                     c = np.float32(own[j])
                     w = wiped[j]
@@ -112,22 +112,26 @@ def _bank_kernel(x, base_sample, blocks, rows, first, bank_step, lags, lanes, wi
 
 
 def correlator_bank(x: np.ndarray, base_sample: int, blocks: np.ndarray, bank: CodeBank, lags: np.ndarray,
-                    add: np.ndarray | None = None, both_images: bool = False) -> tuple[np.ndarray, np.ndarray]:
+                    add: np.ndarray | None = None, both_images: bool = False,
+                    add_bank: CodeBank | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(blocks, lags): each code period's correlation with the spoofer's replica (tracking's blocks) moved by each
     lag, divided by the period's samples: a signal of amplitude a at offset d gives about a r(lag - d); and (blocks):
-    each period's mean sample power. add: amplitudes per block of the replica itself, added to x as it is read (x
-    is not written: a cancelled spoofer looked at again without a copy)."""
+    each period's mean sample power. add: amplitudes per block of the replica itself (from add_bank, the shape that
+    was subtracted; bank's by default), added to x as it is read (x is not written: a cancelled spoofer looked at
+    again without a copy)."""
     out = np.empty((len(blocks), len(lags)), dtype=np.complex128)
     power = np.empty(len(blocks))
     wiped = np.empty(MAX_SUB_SAMPLES, dtype=np.complex64)
-    add = np.empty(0, dtype=np.complex128) if add is None else np.asarray(add, dtype=np.complex128)
+    add_bank = bank if add_bank is None else add_bank
+    add = np.empty(0, dtype=np.complex128) if add is None else np.asarray(add, dtype=np.complex128) / add_bank.scale
     _bank_kernel(x, base_sample, blocks, bank.rows, bank.first, bank.step_chips, np.asarray(lags, dtype=np.float64),
-                 lane_buffer(), wiped, add, both_images, out, power)
+                 lane_buffer(), wiped, add, add_bank.rows, both_images, out, power)
     return out, power
 
 
 def correlator_bank_reference(x: np.ndarray, base_sample: int, blocks, prn: int, lags, add=None,
-                              both_images: bool = False) -> tuple[np.ndarray, np.ndarray]:
+                              both_images: bool = False, add_shape: ChipShape = RECTANGULAR
+                              ) -> tuple[np.ndarray, np.ndarray]:
     """The same with numpy, the exact code phase and an exact exponential (slow; for tests)."""
     code = ca_code(prn).astype(np.float64)
     out = np.full((len(blocks), len(lags)), np.nan, dtype=np.complex128)
@@ -139,32 +143,13 @@ def correlator_bank_reference(x: np.ndarray, base_sample: int, blocks, prn: int,
         carrier = np.exp(2j * np.pi * (ph + k * pstep))
         seen = x[start:start + int(n)].astype(np.complex128)
         if add is not None:
-            own = add[m] * code[np.floor(cp + k * step).astype(np.int64) % 1023] * carrier
+            own = add[m] * add_shape.values(prn, cp + k * step) * carrier
             seen = seen + (2 * own.real if both_images else own)
         wiped = seen * np.conj(carrier)
         power[m] = np.mean(np.abs(seen) ** 2)
         for i, lag in enumerate(lags):
             out[m, i] = np.sum(wiped * code[np.floor(cp + lag + k * step).astype(np.int64) % 1023]) / n
     return out, power
-
-
-AUTOCORRELATION_REACH_CHIPS = 4
-
-
-@functools.lru_cache(maxsize=64)
-def _integer_autocorrelation(prn: int) -> np.ndarray:
-    """R(k) for k = -REACH..REACH chips: the code's circular autocorrelation / 1023. At +/-1 chip it is one of
-    -1, -65 or +63 / 1023 depending on the PRN: a plain triangle would bias a two-path fit by ~0.05 chip."""
-    code = ca_code(prn).astype(np.float64)
-    ks = np.arange(-AUTOCORRELATION_REACH_CHIPS, AUTOCORRELATION_REACH_CHIPS + 1)
-    return np.array([np.dot(code, np.roll(code, k)) / code.size for k in ks])
-
-
-def code_correlation(prn: int, offset_chips):
-    """The code's normalised correlation with itself moved by offset_chips (rectangular chips: linear between whole
-    chips); zero beyond AUTOCORRELATION_REACH_CHIPS, where only the code's sidelobes are."""
-    ks = np.arange(-AUTOCORRELATION_REACH_CHIPS, AUTOCORRELATION_REACH_CHIPS + 1)
-    return np.interp(offset_chips, ks, _integer_autocorrelation(prn), left=0.0, right=0.0)
 
 
 @dataclass(frozen=True)
@@ -180,10 +165,10 @@ class TwoPaths:
         return self.twin_offset_chips - self.spoofer_offset_chips
 
 
-def _explained(prn, us, vs, lags, s_re, side):
+def _explained(prn, us, vs, lags, s_re, side, shape):
     """tr((A^T A)^-1 A^T Re(S) A) for every (u, v) on a grid; -inf where the twin is not on its side of the spoofer
     by MIN_SEPARATION_CHIPS (too close to fit, or crossed over)."""
-    au, av = code_correlation(prn, lags[None, :] - us[:, None]), code_correlation(prn, lags[None, :] - vs[:, None])
+    au, av = shape.correlation(prn, lags[None, :] - us[:, None]), shape.correlation(prn, lags[None, :] - vs[:, None])
     h_uu = np.einsum("ik,kl,il->i", au, s_re, au)
     h_vv = np.einsum("jk,kl,jl->j", av, s_re, av)
     h_uv = au @ s_re @ av.T
@@ -195,18 +180,19 @@ def _explained(prn, us, vs, lags, s_re, side):
     return np.where(spaced & (det > 1e-9), e, -np.inf)
 
 
-def _best(prn, us, vs, lags, s_re, side):
+def _best(prn, us, vs, lags, s_re, side, shape):
     """The grid's best (u, v), and whether any pair on it could be fitted at all."""
-    e = _explained(prn, us, vs, lags, s_re, side)
+    e = _explained(prn, us, vs, lags, s_re, side, shape)
     i, j = np.unravel_index(int(np.argmax(e)), e.shape)
     return float(us[i]), float(vs[j]), bool(np.isfinite(e[i, j]))
 
 
 def fit_two_paths(prn: int, y: np.ndarray, lags: np.ndarray, twin_guess_chips: float,
-                  noise_power: float = 0.0) -> TwoPaths | None:
+                  noise_power: float = 0.0, shape: ChipShape = RECTANGULAR) -> TwoPaths | None:
     """The ML offsets of the spoofer (near 0) and its twin (near twin_guess_chips, on the same side of the spoofer)
     from a bank's correlations y (periods, lags); None without a finite period or when the twin's side cannot hold
-    a fit. noise_power: the variance of one period's correlation with white noise (sample power / samples)."""
+    a fit. noise_power: the variance of one period's correlation with white noise (sample power / samples); shape:
+    the chips' as received (chip_shape)."""
     ok = np.isfinite(y).all(axis=1)
     if not ok.any():
         return None
@@ -219,20 +205,21 @@ def fit_two_paths(prn: int, y: np.ndarray, lags: np.ndarray, twin_guess_chips: f
     side = 1.0 if twin_guess_chips >= 0 else -1.0
     us = np.arange(-SPOOFER_SPAN_CHIPS, SPOOFER_SPAN_CHIPS + 1e-9, COARSE_CHIPS)
     vs = twin_guess_chips + np.arange(-TWIN_SPAN_CHIPS, TWIN_SPAN_CHIPS + 1e-9, COARSE_CHIPS)
-    u, v, fitted = _best(prn, us, vs, lags, s_re, side)
+    u, v, fitted = _best(prn, us, vs, lags, s_re, side, shape)
     if not fitted:
         return None                                     # no pair on the twin's side: never across the spoofer
     fine = np.arange(-COARSE_CHIPS, COARSE_CHIPS + 1e-9, FINE_CHIPS)
-    u, v, _ = _best(prn, u + fine, v + fine, lags, s_re, side)
-    return paths_at(prn, y, lags, u, v)
+    u, v, _ = _best(prn, u + fine, v + fine, lags, s_re, side, shape)
+    return paths_at(prn, y, lags, u, v, shape)
 
 
-def paths_at(prn: int, y: np.ndarray, lags: np.ndarray, u: float, v: float) -> TwoPaths:
+def paths_at(prn: int, y: np.ndarray, lags: np.ndarray, u: float, v: float,
+             shape: ChipShape = RECTANGULAR) -> TwoPaths:
     """Both paths at known offsets u and v: each period's two amplitudes by least squares from its correlations
     y (periods, lags), nan for a period with a correlation missing. With the two lags at u and v this is each
     path's matched filter, the two unmixed: all the buffer says of the amplitudes once the delays are known."""
     ok = np.isfinite(y).all(axis=1)
-    a = np.column_stack([code_correlation(prn, lags - u), code_correlation(prn, lags - v)])
+    a = np.column_stack([shape.correlation(prn, lags - u), shape.correlation(prn, lags - v)])
     amps = np.full((len(y), 2), np.nan + 0j)
     if ok.any():
         amps[ok] = np.linalg.solve(a.T @ a, a.T @ y[ok].T).T

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 import pymap3d
+from scipy.signal import butter, sosfilt
 from scipy.special import i0
 
 from ..errors import BadInput
@@ -45,6 +46,11 @@ OUTPUT_SCALE = 0.5          # headroom in int16 for a +20 dB spoofer on a dozen 
 # (a 7 m horizontal bias in Boston on 2014-12-20), so the receivers run on them are told the generator's truth.
 RECEIVER_SETTINGS = ("pvt.troposphere=false",)
 MIX_BLOCK_S = 1.0
+# A receiver's front end (Case.front_end_hz): the scenes rendered FRONT_END_UP times faster, the mix through an
+# analog-like low-pass (Butterworth, FRONT_END_ORDER) and decimated -- chips rounded as every real recording's are,
+# where gps-sdr-sim alone samples ideal rectangular chips at the output rate
+FRONT_END_UP = 4
+FRONT_END_ORDER = 5
 F_L1_HZ = 1575.42e6
 DELAY_SUB_BLOCK_S = 1e-3     # the time push's delay is held per sub-block (25 ns/s: 25 ps);
                              # its carrier turns per sample
@@ -92,6 +98,7 @@ class Case:
     takeover_hold_s: float = 0.0     # a takeover's (spoof_motion's) parameters, for a generator that takes them
     takeover_m_s: float = 0.0        # rather than a claimed trajectory
     generator: str = GPS_SDR_SIM     # what renders the scenes: gps-sdr-sim, or ours (semperfi.eval.ours)
+    front_end_hz: float = 0.0        # not 0: a front end's low-pass cutoff (one-sided), FRONT_END_UP
 
     @property
     def _when(self) -> str:
@@ -105,7 +112,8 @@ class Case:
     @property
     def _length(self) -> str:
         mark = "" if self.generator == GPS_SDR_SIM else f"-{self.generator}"
-        return f"{self.fs_hz / 1e6:g}M-{self.duration_s:g}s-s{self.seed}{mark}"
+        front = f"-fe{self.front_end_hz / 1e6:g}M" if self.front_end_hz else ""
+        return f"{self.fs_hz / 1e6:g}M{front}-{self.duration_s:g}s-s{self.seed}{mark}"
 
     @property
     def scene(self) -> str:
@@ -339,18 +347,28 @@ def push_delay(case: Case):
     return lambda t: case.push_ns_per_s * 1e-9 * np.clip(np.asarray(t) - case.push_from_s, 0.0, None)
 
 
+def rendered(case: Case) -> Case:
+    """The case its scenes are rendered at: FRONT_END_UP times faster behind a front end."""
+    return replace(case, fs_hz=case.fs_hz * FRONT_END_UP, front_end_hz=0.0) if case.front_end_hz else case
+
+
 def mix(legit: Path, spoof: Path | None, out: Path, case: Case) -> Path:
     """legit + spoofer x 10^(P/20) (from spoof_start_s) + white Gaussian noise at the case's C/N0, int16 IQ. With a
-    time push (case.push_ns_per_s) the spoofer is the legitimate scene delayed by push_delay (spoof is ignored)."""
-    sigma = noise_sigma(case.fs_hz, case.cn0_dbhz)
+    time push (case.push_ns_per_s) the spoofer is the legitimate scene delayed by push_delay (spoof is ignored).
+    Behind a front end (case.front_end_hz) the scenes are at rendered(case)'s rate and the sum is filtered and
+    decimated to the case's."""
+    fast = rendered(case)
+    sigma = noise_sigma(fast.fs_hz, case.cn0_dbhz)
     gain = 10 ** (case.advantage_db / 20.0)
     rng = np.random.default_rng(case.seed)
-    a = scene_samples(legit, case)
+    a = scene_samples(legit, fast)
     pushed = case.attacker and bool(case.push_ns_per_s)
-    b = None if pushed or spoof is None else scene_samples(spoof, case)
-    read, delay = (scene_reader(a), push_delay(case)) if pushed else (None, None)
-    block = 2 * int(round(case.fs_hz * MIX_BLOCK_S))
-    start = 2 * int(round(case.spoof_start_s * case.fs_hz))
+    b = None if pushed or spoof is None else scene_samples(spoof, fast)
+    read, delay = (scene_reader(a), push_delay(fast)) if pushed else (None, None)
+    up = int(round(fast.fs_hz / case.fs_hz))
+    front_end = FrontEnd(case.front_end_hz, fast.fs_hz, up) if case.front_end_hz else None
+    block = 2 * up * int(round(case.fs_hz * MIX_BLOCK_S))
+    start = 2 * int(round(case.spoof_start_s * fast.fs_hz))
     # single precision: int16 scenes, even +20 dB over, keep a thousandth of a unit before the rounding
     gain32, sigma32, scale32 = np.float32(gain), np.float32(sigma), np.float32(OUTPUT_SCALE)
     with open(out, "wb") as f:
@@ -358,7 +376,7 @@ def mix(legit: Path, spoof: Path | None, out: Path, case: Case) -> Path:
             x = a[i:i + block].astype(np.float32)
             if (b is not None or pushed) and i + x.size > start:
                 if pushed:
-                    z = delayed_scene(read, i // 2, x.size // 2, case.fs_hz, delay)
+                    z = delayed_scene(read, i // 2, x.size // 2, fast.fs_hz, delay)
                     s = np.column_stack([z.real, z.imag]).ravel().astype(np.float32)
                 else:
                     s = b[i:i + block].astype(np.float32)
@@ -368,6 +386,8 @@ def mix(legit: Path, spoof: Path | None, out: Path, case: Case) -> Path:
             noise = gaussian(rng, x.size)
             noise *= sigma32
             x += noise
+            if front_end is not None:
+                x = front_end.filter(x)
             x *= scale32                              # in place: np.round(x * s) takes 20 times as long
             np.rint(x, out=x)
             np.clip(x, -32767, 32767, out=x)
@@ -376,6 +396,21 @@ def mix(legit: Path, spoof: Path | None, out: Path, case: Case) -> Path:
                             description=f"gps-sdr-sim legitimate + spoofer scenes mixed by semperfi.eval.xgen: {case}")
     write_sigmf_meta(sidecar_path(out), meta)
     return out
+
+
+class FrontEnd:
+    """A front end's low-pass and decimation over a stream of interleaved IQ blocks (the filter's state carried)."""
+
+    def __init__(self, cutoff_hz: float, fs_hz: float, down: int):
+        self.sos = butter(FRONT_END_ORDER, cutoff_hz, fs=fs_hz, output="sos")
+        self.state = np.zeros((self.sos.shape[0], 2), dtype=np.complex128)
+        self.down = down
+
+    def filter(self, iq: np.ndarray) -> np.ndarray:
+        """Interleaved float IQ in (a whole number of output samples), interleaved float32 IQ out, decimated."""
+        z, self.state = sosfilt(self.sos, iq[0::2] + 1j * iq[1::2], zi=self.state)
+        z = z[::self.down]
+        return np.column_stack([z.real, z.imag]).ravel().astype(np.float32)
 
 
 def score(fixes_csv: Path, place: Place, last_s: float = 10.0, bad_m: float = 10.0, motion: str = "") -> dict:
@@ -449,7 +484,7 @@ def prepare(case: Case, nav_path: str | Path | None, work: Path) -> Path:
     if nav_path is None:
         raise XgenError("gps-sdr-sim needs a RINEX navigation file (--nav)")
     work.mkdir(parents=True, exist_ok=True)
-    return mix(*scenes(case, nav_path, work), work / f"{case.tag}.bin", case)
+    return mix(*scenes(rendered(case), nav_path, work), work / f"{case.tag}.bin", case)
 
 
 def run_case(case: Case, nav_path: str | Path, work: Path, defense: str = "full", assisted: bool = True,

@@ -29,10 +29,12 @@ LANE_GROUP = 16
 
 @dataclass(frozen=True)
 class CodeBank:
-    """One PRN's code at one sample rate: rows[f, i] = code[floor((i - first + f / phases) * step_chips)]."""
+    """One PRN's code at one sample rate: rows[f, i] = code[floor((i - first + f / phases) * step_chips)] (a
+    shaped bank's, the code as a front end rounds its chips, times `scale`)."""
     rows: np.ndarray          # int8 (phases, columns)
     first: int                # column of chip 0 at phase 0
     step_chips: float         # nominal chips per sample
+    scale: float = 1.0        # rows / scale is the code
 
     def __deepcopy__(self, memo):   # read-only and shared: a copied channel keeps the same bank
         return self

@@ -1,0 +1,379 @@
+"""The chips' shape as the front end delivers them, measured on the spoofers' own signals.
+
+A receiver's front end (its analog filter before sampling, a decimating filter after) passes the C/A code's main lobe
+and cuts what lies beyond its band: in every real recording the code's chips are rounded and its correlation peak is
+blunted. A rectangular replica subtracted from such a signal leaves what the filter changed. On GPS-SDR-SIM mixes
+band-limited to +-1.3 MHz the canceller left 6-10 dB more of each spoofer than on the generator's ideal chips, and
+GNSS-SDR behind the plug-in filter was pulled 10-13 m.
+
+The received chip is modelled as the rectangular chip through a filter whose impulse response on the code's envelope
+is piecewise linear, knots TAP_STEP_CHIPS apart over +-TAP_REACH_CHIPS: received = sum_k g_k b_k, b_k the code's
+rectangular waveform smoothed by a triangle one knot wide and moved by knot k. That holds any front end's response
+(not only a symmetric one) at any sample rate. A spoofer, the strongest signal there is, measures it: its tracked
+replica's correlation with the samples at lags around it, summed coherently with its amplitudes over many code
+periods, is sum_k g_k C(lag, k), C the sampled rectangular replica's overlap with each b_k -- a linear least squares
+for g, over every spoofer at once. A legitimate twin within a few chips adds its own copy of the shape at its offset,
+fitted beside it. A shape this close to rectangular chips (GPS-SDR-SIM's own rendering) is taken as rectangular.
+"""
+
+import functools
+import weakref
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..gps import CA_CODE_LENGTH_CHIPS, ca_code
+from ..receiver import CodeBank, code_bank
+
+FINE = 64                     # the shaped waveform's positions per chip (its steps of 1/64 chip: -40 dB at the edges)
+TAP_STEP_CHIPS = 0.125
+TAP_REACH_CHIPS = 1.0
+TAPS_CHIPS = TAP_STEP_CHIPS * np.arange(-round(TAP_REACH_CHIPS / TAP_STEP_CHIPS),
+                                        round(TAP_REACH_CHIPS / TAP_STEP_CHIPS) + 1)
+LAGS_CHIPS = np.round(np.arange(-2.5, 2.5 + 1e-9, 0.05), 10)   # where a spoofer's correlation is measured
+TWIN_NEAR_CHIPS = 0.6         # a twin closer than this is told from the shape by the canceller's own fit (JOINT)
+TWIN_REACH_CHIPS = 3.0        # a twin further than this barely reaches the lags: its gain is not told from noise
+SPOOFER_DRIFT_CHIPS = 0.15    # how far a spoofer may sit from its replica in the fit
+TWIN_MAX_GAIN = 4.0           # a twin at most this much stronger than its spoofer
+TWIN_STEP_CHIPS = 0.05
+TWIN_GUESS_CHIPS = 0.3        # how far from ideal chips' twin the shaped fit's is searched
+MEASURED_SNR_DB = 52.0        # the spoofers' summed correlations hold this much before the shape is fitted
+# The shape is taken when it leaves this much less of the sums than ideal chips do, and by more than noise could:
+# the fit's squares are in units of each lag's noise variance, and the knots' extra gains, smooth across the lags as
+# the noise is, took 480 of them from noise alone on one of our simulator's +6 dB spoofers (ideal chips); ideal chips
+# left 19 000 more than the shape behind a 2.4 MHz front end
+SHAPED_BETTER_DB = -3.0
+SHAPED_SIGNIFICANT = 2500.0
+RIDGE = 1e-4                  # a little weight on the smallest response: the knots beyond the band are not seen
+FIT_ROUNDS = 4
+OUTLIER_FACTOR = 5.0          # a spoofer its own shaped fit leaves this many times the usual is left out of the shape
+
+
+@dataclass(frozen=True)
+class ChipShape:
+    """Gains of the knots TAPS_CHIPS (empty: rectangular chips, the code as transmitted)."""
+    gains: tuple[float, ...] = ()
+
+    @property
+    def rectangular(self) -> bool:
+        return not self.gains
+
+    def correlation(self, prn: int, offset_chips):
+        """What a unit signal of this shape gives the rectangular replica moved by offset_chips from it."""
+        if self.rectangular:
+            return code_correlation(prn, offset_chips)
+        offset = np.asarray(offset_chips, dtype=np.float64)
+        smooth = _smoothed_autocorrelation(prn)
+        grid = np.arange(smooth.size) / FINE - AUTOCORRELATION_REACH_CHIPS
+        return sum(g * np.interp(offset - t, grid, smooth, left=0.0, right=0.0)
+                   for g, t in zip(self.gains, TAPS_CHIPS))
+
+    def waveform(self, prn: int) -> np.ndarray:
+        """The shaped code over one period, FINE values per chip (value q holds at q / FINE chips)."""
+        return _waveform(prn, self.gains)
+
+    def values(self, prn: int, positions_chips: np.ndarray) -> np.ndarray:
+        """The shaped code at these positions (chips): the slow reference of what a shaped bank's rows hold."""
+        wave = self.waveform(prn)
+        return wave[np.floor(np.asarray(positions_chips) * FINE).astype(np.int64) % wave.size]
+
+
+RECTANGULAR = ChipShape()
+
+AUTOCORRELATION_REACH_CHIPS = 4
+
+
+@functools.lru_cache(maxsize=64)
+def _integer_autocorrelation(prn: int) -> np.ndarray:
+    """R(k) for k = -REACH..REACH chips: the code's circular autocorrelation / 1023. At +/-1 chip it is one of
+    -1, -65 or +63 / 1023 depending on the PRN: a plain triangle would bias a two-path fit by ~0.05 chip."""
+    code = ca_code(prn).astype(np.float64)
+    ks = np.arange(-AUTOCORRELATION_REACH_CHIPS, AUTOCORRELATION_REACH_CHIPS + 1)
+    return np.array([np.dot(code, np.roll(code, k)) / code.size for k in ks])
+
+
+def code_correlation(prn: int, offset_chips):
+    """The code's normalised correlation with itself moved by offset_chips (rectangular chips: linear between whole
+    chips); zero beyond AUTOCORRELATION_REACH_CHIPS, where only the code's sidelobes are."""
+    ks = np.arange(-AUTOCORRELATION_REACH_CHIPS, AUTOCORRELATION_REACH_CHIPS + 1)
+    return np.interp(offset_chips, ks, _integer_autocorrelation(prn), left=0.0, right=0.0)
+
+
+def _knot_kernel() -> np.ndarray:
+    """The triangle one knot wide each side, on the fine grid (unit sum): what each knot smooths the chips by."""
+    half = round(TAP_STEP_CHIPS * FINE)
+    tri = 1.0 - np.abs(np.arange(-half, half + 1)) / half
+    return tri / tri.sum()
+
+
+@functools.lru_cache(maxsize=64)
+def _smoothed_autocorrelation(prn: int) -> np.ndarray:
+    """code_correlation on the fine grid over +-REACH chips, smoothed by a knot's triangle (read-only)."""
+    grid = np.arange(-AUTOCORRELATION_REACH_CHIPS * FINE, AUTOCORRELATION_REACH_CHIPS * FINE + 1) / FINE
+    out = np.convolve(code_correlation(prn, grid), _knot_kernel(), mode="same")
+    out.setflags(write=False)
+    return out
+
+
+def _fine_code(prn: int) -> np.ndarray:
+    return np.repeat(ca_code(prn).astype(np.float64), FINE)
+
+
+@functools.lru_cache(maxsize=16)
+def _knot_spectra(prn: int) -> np.ndarray:
+    """The spectra of b_k, each knot's smoothed code moved by its tap, over one period on the fine grid."""
+    n = CA_CODE_LENGTH_CHIPS * FINE
+    kernel = np.zeros(n)
+    tri = _knot_kernel()
+    half = tri.size // 2
+    kernel[np.arange(-half, half + 1) % n] = tri
+    code = np.fft.rfft(_fine_code(prn))
+    k = np.fft.rfft(kernel)
+    # b_k(q) = smoothed code at q + tap_k: a move ahead by the tap
+    shifts = np.exp(2j * np.pi * np.outer(TAPS_CHIPS * FINE, np.arange(code.size)) / n)
+    out = code * k * shifts
+    out.setflags(write=False)
+    return out
+
+
+@functools.lru_cache(maxsize=64)
+def _waveform(prn: int, gains: tuple[float, ...]) -> np.ndarray:
+    if not gains:
+        out = _fine_code(prn)
+    else:
+        out = np.fft.irfft(np.asarray(gains) @ _knot_spectra(prn), CA_CODE_LENGTH_CHIPS * FINE)
+    out.setflags(write=False)
+    return out
+
+
+def knot_waveforms(prn: int) -> np.ndarray:
+    """Every b_k over one period on the fine grid (knots, positions)."""
+    return np.fft.irfft(_knot_spectra(prn), CA_CODE_LENGTH_CHIPS * FINE, axis=1)
+
+
+_BANKS: "weakref.WeakValueDictionary[tuple, CodeBank]" = weakref.WeakValueDictionary()
+
+
+def shaped_bank(prn: int, fs_hz: float, shape: ChipShape) -> CodeBank:
+    """The PRN's code bank with the shape's chips (int8, its largest value 127: within 0.4 % of the shape's peak):
+    what a subtraction reads. The rectangular shape's is the tracking bank itself."""
+    bank = code_bank(prn, fs_hz)
+    if shape.rectangular:
+        return bank
+    key = (prn, fs_hz, shape)
+    out = _BANKS.get(key)
+    if out is None:
+        phases, columns = bank.rows.shape
+        positions = (np.arange(columns)[None, :] - bank.first + np.arange(phases)[:, None] / phases) * bank.step_chips
+        scale = 127.0 / float(np.max(np.abs(shape.waveform(prn))))
+        rows = np.round(shape.values(prn, positions) * scale).astype(np.int8)
+        rows.flags.writeable = False
+        out = _BANKS[key] = CodeBank(rows, bank.first, bank.step_chips, scale)
+    return out
+
+
+@dataclass
+class _Seen:
+    """One spoofer's correlations, summed: S(lag) = sum_b Re(y_b(lag) conj(a_b)), E = sum_b |a_b|^2."""
+    s: np.ndarray
+    energy: float
+    noise: float              # sum_b |a_b|^2 x the variance of one period's correlation
+    overlap: np.ndarray       # C (lags, knots), from one of its periods
+    rectangular: np.ndarray   # (lags): the same for rectangular chips
+    twin_chips: float | None  # a twin the canceller already fits jointly (its offset), else searched
+
+
+def overlap_matrix(prn: int, block: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """C[lag, k]: the rectangular replica moved by each of LAGS_CHIPS times b_k, over one code period's samples as
+    tracking placed them (block: first, n, code phase, chips per sample, ...), / samples; and the same for the
+    rectangular replica itself (what ideal chips give)."""
+    n, cp, step = int(block[1]), float(block[2]), float(block[3])
+    pos = cp + np.arange(n) * step
+    code = ca_code(prn).astype(np.float32)
+    rect = code[np.floor(pos[None, :] + LAGS_CHIPS[:, None]).astype(np.int64) % CA_CODE_LENGTH_CHIPS]
+    knots = knot_waveforms(prn).astype(np.float32)
+    b = knots[:, np.floor(pos * FINE).astype(np.int64) % knots.shape[1]]
+    at_zero = rect[np.argmin(np.abs(LAGS_CHIPS))]
+    return (rect @ b.T).astype(np.float64) / n, (rect @ at_zero).astype(np.float64) / n
+
+
+class ChipShapeMeter:
+    """Sums the spoofers' correlations until they hold MEASURED_SNR_DB, then fits the shape once (shape: rectangular
+    until then, and after when the fit says so)."""
+
+    def __init__(self):
+        self.shape = RECTANGULAR
+        self.done = False
+        self.distance_db: float | None = None   # the fitted shape's distance from rectangular chips
+        self.explained_db: float | None = None  # what it leaves of the sums, against what ideal chips leave
+        self.explained: float | None = None     # the same as a difference, in units of the noise
+        self._seen: dict[int, _Seen] = {}
+
+    def add(self, prn: int, y: np.ndarray, amplitudes: np.ndarray, noise_power: float, block: np.ndarray,
+            twin_chips: float | None) -> None:
+        """A spoofer's bank over LAGS_CHIPS (periods, lags) on samples it is not yet subtracted from, and its
+        amplitude per period (the correlation at lag 0 / samples)."""
+        ok = np.isfinite(y).all(axis=1) & np.isfinite(amplitudes)
+        if self.done or not ok.any():
+            return
+        a = amplitudes[ok]
+        s = np.real(y[ok].T @ np.conj(a))
+        energy = float(np.sum(np.abs(a) ** 2))
+        seen = self._seen.get(prn)
+        if seen is None:
+            self._seen[prn] = _Seen(s, energy, energy * noise_power, *overlap_matrix(prn, block), twin_chips)
+        else:
+            seen.s += s
+            seen.energy += energy
+            seen.noise += energy * noise_power
+            seen.twin_chips = twin_chips
+
+    def as_event(self) -> dict:
+        """What was decided, for the events: the shape, and how the fit told it from ideal chips."""
+        out = {"shape": "rectangular" if self.shape.rectangular else "shaped"}
+        if self.explained_db is not None:
+            out |= {"explained_db": round(self.explained_db, 1), "explained": round(float(self.explained), 1),
+                    "distance_db": round(float(self.distance_db), 1)}
+        if not self.shape.rectangular:
+            out |= {"taps_chips": [round(float(t), 4) for t in TAPS_CHIPS],
+                    "gains": [round(g, 4) for g in self.shape.gains]}
+        return out
+
+    @property
+    def snr_db(self) -> float:
+        """What the sums hold: each spoofer's E^2 / noise, summed (the inverse variance of the fitted shape)."""
+        total = sum(v.energy ** 2 / v.noise for v in self._seen.values() if v.noise > 0)
+        return float(10 * np.log10(total)) if total > 0 else -np.inf
+
+    def fit_when_ready(self) -> bool:
+        """Fits once the sums hold enough; True when the shape was just decided."""
+        if self.done or self.snr_db < MEASURED_SNR_DB:
+            return False
+        self.done = True
+        items = [(prn, v) for prn, v in self._seen.items() if v.energy > 0 and v.noise > 0]
+        self._seen.clear()
+        if not items:
+            return True
+        # each spoofer alone first, ideal chips' twins first (their one gain cannot bend to a twin in the wrong place,
+        # as the knots' can); then the knots over the spoofers they fit alike: one whose twin sits where the shape is
+        # (GPS-SDR-SIM, 1 km, a joint track 0.6 chip off) would bend the front end to it
+        rectangular = {prn: fit_gains([(prn, v)], _RectangularModel()) for prn, v in items}
+        twins = {prn: fit[2][prn] for prn, fit in rectangular.items()}
+        alone = {prn: fit_gains([(prn, v)], _ShapedModel(), twins)[1] for prn, v in items}
+        usual = OUTLIER_FACTOR * max(float(np.median(list(alone.values()))), LAGS_CHIPS.size)
+        items = [(prn, v) for prn, v in items if alone[prn] <= usual]
+        rectangular_left = sum(rectangular[prn][1] for prn, _ in items)
+        gains, shaped_left, _ = fit_gains(items, _ShapedModel(), twins)
+        self.distance_db = rectangular_distance_db(gains)
+        self.explained_db = float(10 * np.log10(max(shaped_left, 1e-30) / max(rectangular_left, 1e-30)))
+        self.explained = rectangular_left - shaped_left
+        if self.explained_db < SHAPED_BETTER_DB and self.explained > SHAPED_SIGNIFICANT:
+            self.shape = ChipShape(tuple(float(g) for g in gains))
+        return True
+
+
+def rectangular_distance_db(gains: np.ndarray) -> float:
+    """How far a shape is from rectangular chips: the mean square of their difference, over any PRN's period."""
+    wave = _waveform(1, tuple(float(g) for g in gains))
+    return float(10 * np.log10(max(np.mean((wave - _fine_code(1)) ** 2), 1e-30)))
+
+
+class _ShapedModel:
+    """Correlations as the knots give them."""
+    def columns(self, v: _Seen) -> np.ndarray:
+        return v.overlap
+
+    def twin(self, prn: int, d: float) -> np.ndarray:
+        """(lags, knots): a unit twin d chips from the spoofer, through each knot (the continuous correlation)."""
+        smooth = _smoothed_autocorrelation(prn)
+        grid = np.arange(smooth.size) / FINE - AUTOCORRELATION_REACH_CHIPS
+        return np.interp(LAGS_CHIPS[:, None] - d - TAPS_CHIPS[None, :], grid, smooth, left=0.0, right=0.0)
+
+    def start(self) -> np.ndarray:
+        gains = np.zeros(TAPS_CHIPS.size)
+        gains[TAPS_CHIPS.size // 2] = 1.0
+        return gains
+
+
+class _RectangularModel:
+    """Correlations as ideal chips give them (one gain)."""
+    def columns(self, v: _Seen) -> np.ndarray:
+        return v.rectangular[:, None]
+
+    def twin(self, prn: int, d: float) -> np.ndarray:
+        return code_correlation(prn, LAGS_CHIPS - d)[:, None]
+
+    def start(self) -> np.ndarray:
+        return np.ones(1)
+
+
+def _moved(columns: np.ndarray, s: float) -> np.ndarray:
+    """Correlations over the lags (rows) of a signal s chips further from the replica (interpolated)."""
+    if not s:
+        return columns
+    return np.stack([np.interp(LAGS_CHIPS - s, LAGS_CHIPS, col) for col in columns.T], axis=1)
+
+
+def fit_gains(items: list, model, twins: dict[int, tuple[float, float]] | None = None
+              ) -> tuple[np.ndarray, float, dict[int, tuple[float, float]]]:
+    """A model's gains from every spoofer's sums (least squares weighted by their SNR), normalised so a signal's
+    correlation at the replica is its amplitude, as tracking measures it; the weighted squares the fit leaves, and
+    each spoofer's twin (offset, gain). Beside each spoofer: its twin, searched near `twins` (another model's) when
+    given, and where the spoofer itself sits from its replica (a twin a chip or two off pulls a tracking loop's
+    early-late balance by hundredths of a chip once the chips are rounded)."""
+    gains = model.start()
+    guesses = dict(twins or {})
+    where = {prn: 0.0 for prn, _ in items}
+    twins = {prn: _best_twin(prn, v, gains, model, guesses.get(prn)) for prn, v in items}
+    left = np.inf
+    for _ in range(FIT_ROUNDS):
+        rows, rhs = [], []
+        for prn, v in items:
+            d, c = twins[prn]
+            w = np.sqrt(v.energy ** 2 / v.noise)
+            rows.append(w * (_moved(model.columns(v), where[prn]) + (c * model.twin(prn, d) if c else 0.0)))
+            rhs.append(w * v.s / v.energy)   # (the noise's own share, sigma^2 / (|a|^2 + sigma^2), under 2 % at +3 dB)
+        a, b = np.vstack(rows), np.concatenate(rhs)
+        ridge = RIDGE * float(np.sum(a ** 2)) / a.shape[1]
+        gains = np.linalg.solve(a.T @ a + ridge * np.eye(a.shape[1]), a.T @ b)
+        left = float(np.sum((a @ gains - b) ** 2))
+        for prn, v in items:
+            where[prn] = _best_place(prn, v, gains, model, twins[prn])
+            twins[prn] = _best_twin(prn, v, gains, model, guesses.get(prn), where[prn])
+    at_zero = np.mean([model.columns(v)[np.argmin(np.abs(LAGS_CHIPS)), :] for _, v in items], axis=0)
+    return gains / float(at_zero @ gains), left, twins
+
+
+def _best_place(prn: int, v: _Seen, gains: np.ndarray, model, twin: tuple[float, float]) -> float:
+    """Where the spoofer sits from its replica (within SPOOFER_DRIFT_CHIPS), given the shape and its twin."""
+    d, c = twin
+    own = model.columns(v) @ gains
+    want = v.s / v.energy - (c * model.twin(prn, d) @ gains if c else 0.0)
+    places = np.arange(-SPOOFER_DRIFT_CHIPS, SPOOFER_DRIFT_CHIPS + 1e-9, 0.005)
+    misfit = [float(np.sum((np.interp(LAGS_CHIPS - s, LAGS_CHIPS, own) - want) ** 2)) for s in places]
+    return float(places[int(np.argmin(misfit))])
+
+
+def _best_twin(prn: int, v: _Seen, gains: np.ndarray, model, guess: tuple[float, float] | None = None,
+               place: float = 0.0) -> tuple[float, float]:
+    """The twin's (offset, gain) that best explains what the model leaves of this spoofer's sums (the spoofer
+    `place` chips from its replica), near the canceller's own twin or a guess when there is one; (0, 0) when none
+    explains anything."""
+    left = v.s / v.energy - _moved(model.columns(v) @ gains[:, None], place)[:, 0]
+    if v.twin_chips is not None and abs(v.twin_chips) < TWIN_REACH_CHIPS:
+        candidates = v.twin_chips + np.arange(-0.1, 0.1 + 1e-9, 0.01)
+    elif guess is not None and guess[1]:
+        candidates = guess[0] + np.arange(-TWIN_GUESS_CHIPS, TWIN_GUESS_CHIPS + 1e-9, 0.01)
+    else:
+        side = np.arange(TWIN_NEAR_CHIPS, TWIN_REACH_CHIPS + 1e-9, TWIN_STEP_CHIPS)
+        candidates = np.concatenate([-side[::-1], side])
+    best, arg = 0.0, (0.0, 0.0)
+    for d in candidates:
+        col = model.twin(prn, d) @ gains
+        power = float(col @ col)
+        if power <= 0:
+            continue
+        c = float(col @ left) / power
+        if abs(c) <= TWIN_MAX_GAIN and c * c * power > best:
+            best, arg = c * c * power, (float(d), c)
+    return arg
