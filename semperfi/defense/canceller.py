@@ -316,6 +316,7 @@ class AdversaryTrack:
                  front_end: ChipShapeMeter | None = None):
         self.prn, self.stage, self.cfg = prn, stage, cfg
         self.front_end = front_end     # the chips' shape as received (rectangular without one)
+        self._subtracted: tuple[ChipShape | None, CodeBank | None] = (None, None)   # the shape and its bank
         self.legit_offset_chips = legit_offset_chips
         loop = LoopConfig(pll_bw_hz=cfg.pll_bw_hz, dll_bw_hz=cfg.dll_bw_hz, pull_in_ms=cfg.pull_in_ms,
                           min_cn0_dbhz=20.0, dll_narrow_bw_hz=cfg.narrow_dll_bw_hz,
@@ -349,8 +350,12 @@ class AdversaryTrack:
 
     @property
     def subtract_bank(self) -> CodeBank:
-        """The code as it is subtracted: shaped as the front end delivers it (tracking keeps rectangular chips)."""
-        return shaped_bank(self.prn, self.channel.fs_hz, self.shape)
+        """The code as it is subtracted: shaped as the front end delivers it (tracking keeps rectangular chips). Held
+        here: the banks are shared while someone holds them, and built again (1 MB) when no one does."""
+        shape = self.shape
+        if self._subtracted[0] != shape:
+            self._subtracted = (shape, shaped_bank(self.prn, self.channel.fs_hz, shape))
+        return self._subtracted[1]
 
     def track(self, tracked: np.ndarray, base_sample: int) -> None:
         """The tracking half: reads samples only, so several tracks can run at once (the kernels release the GIL)."""

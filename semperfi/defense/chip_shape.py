@@ -62,11 +62,8 @@ class ChipShape:
         """What a unit signal of this shape gives the rectangular replica moved by offset_chips from it."""
         if self.rectangular:
             return code_correlation(prn, offset_chips)
-        offset = np.asarray(offset_chips, dtype=np.float64)
-        smooth = _smoothed_autocorrelation(prn)
-        grid = np.arange(smooth.size) / FINE - AUTOCORRELATION_REACH_CHIPS
-        return sum(g * np.interp(offset - t, grid, smooth, left=0.0, right=0.0)
-                   for g, t in zip(self.gains, TAPS_CHIPS))
+        grid, values = _shaped_correlation(prn, self.gains)
+        return np.interp(offset_chips, grid, values, left=0.0, right=0.0)
 
     def waveform(self, prn: int) -> np.ndarray:
         """The shaped code over one period, FINE values per chip (value q holds at q / FINE chips)."""
@@ -113,6 +110,16 @@ def _smoothed_autocorrelation(prn: int) -> np.ndarray:
     out = np.convolve(code_correlation(prn, grid), _knot_kernel(), mode="same")
     out.setflags(write=False)
     return out
+
+
+@functools.lru_cache(maxsize=64)
+def _shaped_correlation(prn: int, gains: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """ChipShape.correlation on the fine grid over +-REACH chips: (offsets, values), read-only."""
+    smooth = _smoothed_autocorrelation(prn)
+    grid = np.arange(smooth.size) / FINE - AUTOCORRELATION_REACH_CHIPS
+    values = sum(g * np.interp(grid - t, grid, smooth, left=0.0, right=0.0) for g, t in zip(gains, TAPS_CHIPS))
+    values.setflags(write=False)
+    return grid, values
 
 
 def _fine_code(prn: int) -> np.ndarray:
