@@ -18,12 +18,13 @@ def ca_signal(prn: int, t_s: np.ndarray, code_phase_chips: float, doppler_hz: fl
 
 
 def behind_front_end(fs_hz: float, cutoff_hz: float, duration_s: float, legit: list[tuple], spoofers: list[tuple],
-                     amplitude: float, advantage_db: float, seed: int = 1, up: int = 4
+                     amplitude: float, advantage_db: float, seed: int = 1, up: int = 4, if_hz: float = 0.0
                      ) -> tuple[np.ndarray, np.ndarray]:
     """(with the spoofers, without) as a real front end delivers them: rendered `up` times faster with unit noise,
     through a 5th-order Butterworth low-pass of cutoff_hz (0: none, ideal chips) and decimated to fs_hz -- chips
     rounded as an analog filter before a sampler rounds them. legit and spoofers: (prn, code phase chips, Doppler
-    Hz, phase rad) each, amplitude per sample at fs_hz for unit noise per component."""
+    Hz, phase rad) each, amplitude per sample at fs_hz for unit noise per component. if_hz: real samples at that IF
+    (complex64 with no imaginary part), the band moved there before the sampler."""
     from scipy.signal import butter, sosfilt
     rng = np.random.default_rng(seed)
     fast = fs_hz * up
@@ -43,5 +44,7 @@ def behind_front_end(fs_hz: float, cutoff_hz: float, duration_s: float, legit: l
         for i, v in enumerate((attacked, clean)):
             if sos is not None:
                 v, state[i] = sosfilt(sos, v, zi=state[i])
+            if if_hz:
+                v = np.sqrt(2) * np.real(v * np.exp(2j * np.pi * if_hz * t)) + 0j
             out[i].append(v[::up].astype(np.complex64))
     return np.concatenate(out[0]), np.concatenate(out[1])

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.signal import butter, sosfreqz
 
-from semperfi.defense.canceller import (Canceller, code_overlap, code_overlap_reference, refine_peak,
+from semperfi.defense.canceller import (Canceller, CancellerConfig, code_overlap, code_overlap_reference, refine_peak,
                                         replicas_reference, subtract_replicas)
 from semperfi.defense.chip_shape import RECTANGULAR, TAPS_CHIPS, ChipShape, shaped_bank
 from semperfi.defense.twopath_track import (bank_lags, correlator_bank, correlator_bank_reference, fit_two_paths)
@@ -95,19 +95,19 @@ SPOOFERS = [(3, 103.0, 1200.0, 1.1), (8, 403.4, -2100.0, 2.0)]   # synchronized:
 AMPLITUDE = float(np.sqrt(10 ** 4.5 / FS) * np.sqrt(2))   # 45 dB-Hz for unit noise per component
 
 
-def cancelled_db(x, z, measure: bool) -> tuple[float, Canceller]:
+def cancelled_db(x, z, measure: bool, fs: float = FS, if_hz: float = 0.0) -> tuple[float, Canceller]:
     """What the canceller leaves of the spoofers: their power over what is left of them (the cleaned samples less
-    the recording without them), from 1 s on."""
-    c = Canceller(FS)
+    the recording without them), from 1 s on (if_hz: real samples at that IF)."""
+    c = Canceller(fs, if_hz, CancellerConfig(real_samples=bool(if_hz)))
     if not measure:
         c.front_end.done = True      # rectangular chips throughout, as before the shape was measured
     for prn, *_ in SPOOFERS:
-        caf = acquire(x[:int(0.01 * FS)], FS, [prn], DopplerGrid(max_hz=6000, step_hz=333), coherent_ms=2,
-                      noncoherent=5)[prn]
-        c.cancel(refine_peak(x[:int(0.01 * FS)], FS, 0.0, caf.best), 0)
-    step = int(0.05 * FS)
+        caf = acquire(x[:int(0.01 * fs)], fs, [prn], DopplerGrid(max_hz=6000, step_hz=333), if_hz=if_hz,
+                      coherent_ms=2, noncoherent=5)[prn]
+        c.cancel(refine_peak(x[:int(0.01 * fs)], fs, if_hz, caf.best), 0)
+    step = int(0.05 * fs)
     y = np.concatenate([c.push(x[i:i + step]) for i in range(0, x.size, step)] + [c.flush()])
-    steady = slice(int(1.0 * FS), x.size - int(0.1 * FS))
+    steady = slice(int(1.0 * fs), x.size - int(0.1 * fs))
     return float(10 * np.log10(np.mean(np.abs((x - z)[steady]) ** 2) / np.mean(np.abs((y - z)[steady]) ** 2))), c
 
 
@@ -125,6 +125,21 @@ def test_spoofers_behind_a_front_end_are_cancelled_through_its_measured_chips():
     assert ideal < 16.0
     assert not meter.shape.rectangular and meter.explained_db < -10
     assert shaped > 22.0 and shaped > ideal + 8.0
+
+
+def test_real_samples_at_an_if_behind_a_front_end_are_cancelled_through_its_chips():
+    """The same at a real IF (8 MSa/s, 2 MHz IF: the band 0.8-3.2 MHz), both images subtracted with the measured
+    shape: the front end's chips are the same whatever the sampler does after it (measured: 10.9 dB rectangular,
+    29.4 dB shaped)."""
+    fs, if_hz = 8e6, 2e6
+    amplitude = float(np.sqrt(10 ** 4.5 / fs) * np.sqrt(2))
+    x, z = behind_front_end(fs, CUTOFF_HZ, 1.6, LEGIT, SPOOFERS, amplitude, 10.0, if_hz=if_hz)
+    assert not np.any(x.imag)
+    ideal, _ = cancelled_db(x, z, measure=False, fs=fs, if_hz=if_hz)
+    shaped, canceller = cancelled_db(x, z, measure=True, fs=fs, if_hz=if_hz)
+    print(f"real IF: rectangular {ideal:.1f} dB, shaped {shaped:.1f} dB, {canceller.front_end.as_event()}")
+    assert not canceller.front_end.shape.rectangular
+    assert ideal < 16.0 and shaped > ideal + 8.0
 
 
 def test_ideal_chips_stay_rectangular():
