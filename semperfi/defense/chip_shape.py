@@ -296,6 +296,11 @@ class _ShapedModel:
         grid = np.arange(smooth.size) / FINE - AUTOCORRELATION_REACH_CHIPS
         return np.interp(LAGS_CHIPS[:, None] - d - TAPS_CHIPS[None, :], grid, smooth, left=0.0, right=0.0)
 
+    def twin_response(self, prn: int, gains: np.ndarray):
+        """d -> twin(prn, d) @ gains, from one table of the shape's correlation (a twin's search tries ~100 d)."""
+        grid, values = _shaped_correlation(prn, tuple(float(g) for g in gains))
+        return lambda d: np.interp(LAGS_CHIPS - d, grid, values, left=0.0, right=0.0)
+
     def start(self) -> np.ndarray:
         gains = np.zeros(TAPS_CHIPS.size)
         gains[TAPS_CHIPS.size // 2] = 1.0
@@ -309,6 +314,9 @@ class _RectangularModel:
 
     def twin(self, prn: int, d: float) -> np.ndarray:
         return code_correlation(prn, LAGS_CHIPS - d)[:, None]
+
+    def twin_response(self, prn: int, gains: np.ndarray):
+        return lambda d: gains[0] * code_correlation(prn, LAGS_CHIPS - d)
 
     def start(self) -> np.ndarray:
         return np.ones(1)
@@ -355,7 +363,7 @@ def _best_place(prn: int, v: _Seen, gains: np.ndarray, model, twin: tuple[float,
     """Where the spoofer sits from its replica (within SPOOFER_DRIFT_CHIPS), given the shape and its twin."""
     d, c = twin
     own = model.columns(v) @ gains
-    want = v.s / v.energy - (c * model.twin(prn, d) @ gains if c else 0.0)
+    want = v.s / v.energy - (c * model.twin_response(prn, gains)(d) if c else 0.0)
     places = np.arange(-SPOOFER_DRIFT_CHIPS, SPOOFER_DRIFT_CHIPS + 1e-9, 0.005)
     misfit = [float(np.sum((np.interp(LAGS_CHIPS - s, LAGS_CHIPS, own) - want) ** 2)) for s in places]
     return float(places[int(np.argmin(misfit))])
@@ -375,8 +383,9 @@ def _best_twin(prn: int, v: _Seen, gains: np.ndarray, model, guess: tuple[float,
         side = np.arange(TWIN_NEAR_CHIPS, TWIN_REACH_CHIPS + 1e-9, TWIN_STEP_CHIPS)
         candidates = np.concatenate([-side[::-1], side])
     best, arg = 0.0, (0.0, 0.0)
+    response = model.twin_response(prn, gains)
     for d in candidates:
-        col = model.twin(prn, d) @ gains
+        col = response(d)
         power = float(col @ col)
         if power <= 0:
             continue
