@@ -141,6 +141,15 @@ def cross_power(mine: Peak, other: Peak, fs_hz: float, n: int, k: int) -> float:
                                2 * np.pi * (other.doppler_hz - mine.doppler_hz) / fs_hz, n - n % k, k)
 
 
+def load_kernels(fs_hz: float) -> None:
+    """The examinations' numba kernels loaded from numba's cache, on a tiny input: their first call costs 0.2-0.5 s
+    each, which a defended start-up's first look would otherwise wait for (called beside it, on a thread aside)."""
+    k = int(round(fs_hz * 1e-3))
+    noise = np.random.default_rng(0).standard_normal(2 * k).astype(np.complex64)
+    two_path_test(noise, fs_hz, 1, 0.0, 0.0, n_blocks=2)
+    _cross_power_kernel(float_code(1), 0.0, 0.5, float_code(2), 0.0, 0.5, 0.1, 2 * k, k)
+
+
 def cross_power_reference(mine: Peak, other: Peak, fs_hz: float, n: int, k: int) -> float:
     """The same with plain numpy (slow; for tests)."""
     n -= n % k
