@@ -126,36 +126,37 @@ def _fine_code(prn: int) -> np.ndarray:
     return np.repeat(ca_code(prn).astype(np.float64), FINE)
 
 
-@functools.lru_cache(maxsize=16)
-def _knot_spectra(prn: int) -> np.ndarray:
-    """The spectra of b_k, each knot's smoothed code moved by its tap, over one period on the fine grid."""
-    n = CA_CODE_LENGTH_CHIPS * FINE
-    kernel = np.zeros(n)
+@functools.lru_cache(maxsize=32)
+def _smoothed_code(prn: int) -> np.ndarray:
+    """The code's rectangular waveform over one period on the fine grid, smoothed by a knot's triangle (circularly):
+    b_0. Every other knot's is this moved by its tap, a whole number of fine steps (read-only, 0.5 MB)."""
     tri = _knot_kernel()
     half = tri.size // 2
-    kernel[np.arange(-half, half + 1) % n] = tri
-    code = np.fft.rfft(_fine_code(prn))
-    k = np.fft.rfft(kernel)
-    # b_k(q) = smoothed code at q + tap_k: a move ahead by the tap
-    shifts = np.exp(2j * np.pi * np.outer(TAPS_CHIPS * FINE, np.arange(code.size)) / n)
-    out = code * k * shifts
+    code = _fine_code(prn)
+    out = sum(w * np.roll(code, k - half) for k, w in enumerate(tri) if w)
     out.setflags(write=False)
     return out
 
 
-@functools.lru_cache(maxsize=64)
+KNOT_STEPS = np.round(TAPS_CHIPS * FINE).astype(np.int64)   # each knot's move, in fine steps
+
+
+@functools.lru_cache(maxsize=32)
 def _waveform(prn: int, gains: tuple[float, ...]) -> np.ndarray:
     if not gains:
         out = _fine_code(prn)
-    else:
-        out = np.fft.irfft(np.asarray(gains) @ _knot_spectra(prn), CA_CODE_LENGTH_CHIPS * FINE)
+    else:   # b_k(q) = b_0(q + tap_k): moved ahead by the tap
+        smooth = _smoothed_code(prn)
+        out = sum(g * np.roll(smooth, -int(m)) for g, m in zip(gains, KNOT_STEPS))
     out.setflags(write=False)
     return out
 
 
-def knot_waveforms(prn: int) -> np.ndarray:
-    """Every b_k over one period on the fine grid (knots, positions)."""
-    return np.fft.irfft(_knot_spectra(prn), CA_CODE_LENGTH_CHIPS * FINE, axis=1)
+def knot_values(prn: int, positions_chips: np.ndarray) -> np.ndarray:
+    """Every b_k at these positions (knots, positions)."""
+    smooth = _smoothed_code(prn)
+    q = np.floor(np.asarray(positions_chips) * FINE).astype(np.int64)
+    return smooth[(q[None, :] + KNOT_STEPS[:, None]) % smooth.size]
 
 
 _BANKS: "weakref.WeakValueDictionary[tuple, CodeBank]" = weakref.WeakValueDictionary()
@@ -198,8 +199,7 @@ def overlap_matrix(prn: int, block: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     pos = cp + np.arange(n) * step
     code = ca_code(prn).astype(np.float32)
     rect = code[np.floor(pos[None, :] + LAGS_CHIPS[:, None]).astype(np.int64) % CA_CODE_LENGTH_CHIPS]
-    knots = knot_waveforms(prn).astype(np.float32)
-    b = knots[:, np.floor(pos * FINE).astype(np.int64) % knots.shape[1]]
+    b = knot_values(prn, pos).astype(np.float32)
     at_zero = rect[np.argmin(np.abs(LAGS_CHIPS))]
     return (rect @ b.T).astype(np.float64) / n, (rect @ at_zero).astype(np.float64) / n
 
