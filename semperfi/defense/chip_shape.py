@@ -13,7 +13,8 @@ rectangular waveform smoothed by a triangle one knot wide and moved by knot k. T
 replica's correlation with the samples at lags around it, summed coherently with its amplitudes over many code
 periods, is sum_k g_k C(lag, k), C the sampled rectangular replica's overlap with each b_k -- a linear least squares
 for g, over every spoofer at once. A legitimate twin within a few chips adds its own copy of the shape at its offset,
-fitted beside it. A shape this close to rectangular chips (GPS-SDR-SIM's own rendering) is taken as rectangular.
+and the spoofer may sit a little off its replica (its twin pulls the tracking loop): both are fitted beside it. Ideal
+chips (GPS-SDR-SIM's own rendering) are kept unless the shape explains the correlations far better than they do.
 """
 
 import functools
