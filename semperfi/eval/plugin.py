@@ -220,6 +220,8 @@ def residual_profile(case, nav_path: str | Path, work: Path, cleaned: Path, prn:
     from ..gps import CA_CHIP_RATE_HZ, L1_HZ
     from ..receiver import DopplerGrid, acquire
     from .xgen import OUTPUT_SCALE, prepare, scenes
+    if case.front_end_hz:
+        raise ValueError("a residual profile reads the scenes at the recording's rate: not behind a front end")
     legit_scene, spoof_scene = scenes(case, nav_path, work)
     if spoof_scene is None:
         raise ValueError("a residual profile needs a case with a static or moving spoofer")

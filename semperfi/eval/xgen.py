@@ -451,7 +451,9 @@ def scene_dir(work: Path) -> Path:
 def scenes(case: Case, nav_path: str | Path, work: Path) -> tuple[Path, Path | None]:
     """The legitimate scene of a case and its spoofer's (None: no attacker, or a time push, which the mixer makes
     from the legitimate scene), rendered once and cached in scene_dir, named by what renders them: navigation file,
-    place or motion (by its content), start time, path loss and rate; a longer one serves a shorter case."""
+    place or motion (by its content), start time, path loss and rate; a longer one serves a shorter case. Behind a
+    front end, at rendered(case)'s rate."""
+    case = rendered(case)
     cache = scene_dir(work)
     stem = (f"{Path(nav_path).stem}-{case.date.replace('/', '').replace(',', 'T').replace(':', '')}"
             f"-{case.fs_hz / 1e6:g}M{'-pl' if case.path_loss else ''}")
@@ -484,7 +486,7 @@ def prepare(case: Case, nav_path: str | Path | None, work: Path) -> Path:
     if nav_path is None:
         raise XgenError("gps-sdr-sim needs a RINEX navigation file (--nav)")
     work.mkdir(parents=True, exist_ok=True)
-    return mix(*scenes(rendered(case), nav_path, work), work / f"{case.tag}.bin", case)
+    return mix(*scenes(case, nav_path, work), work / f"{case.tag}.bin", case)
 
 
 def run_case(case: Case, nav_path: str | Path, work: Path, defense: str = "full", assisted: bool = True,
