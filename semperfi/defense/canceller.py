@@ -16,7 +16,8 @@ from ..gps import (CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, CA_CODE_PERIOD_S, L1_H
                   chips_offset)
 from ..receiver import (Channel, CodeBank, DopplerGrid, LoopConfig, NEXT_SAMPLE, Peak, acquire, cores, fill_lanes,
                         initial_state, lane_buffer, replica, run_each, sub_block_samples)
-from .chip_shape import LAGS_CHIPS, RECTANGULAR, TAP_REACH_CHIPS, ChipShape, ChipShapeMeter, shaped_bank
+from .chip_shape import (LAGS_CHIPS, RECTANGULAR, TAP_REACH_CHIPS, TWIN_NEAR_CHIPS, ChipShape, ChipShapeMeter,
+                         shaped_bank)
 from .twopath_track import TwoPaths, bank_lags, correlator_bank, fit_two_paths, paths_at
 
 MEASURE_EVERY = 8                 # code periods per attenuation measurement
@@ -318,6 +319,10 @@ class AdversaryTrack:
         self.front_end = front_end     # the chips' shape as received (rectangular without one)
         self._subtracted: tuple[ChipShape | None, CodeBank | None] = (None, None)   # the shape and its bank
         self.legit_offset_chips = legit_offset_chips
+        # a twin the two-path fit placed this close while the chips' shape is unknown: a front end's rounded chips
+        # give a strong lone signal such a second path (chip_shape.TWIN_NEAR_CHIPS); tracked alone until the shape
+        # is measured, then jointly (where the joint fits, on the shape, tell a twin from the rounding)
+        self.suspect_chips: float | None = None
         loop = LoopConfig(pll_bw_hz=cfg.pll_bw_hz, dll_bw_hz=cfg.dll_bw_hz, pull_in_ms=cfg.pull_in_ms,
                           min_cn0_dbhz=20.0, dll_narrow_bw_hz=cfg.narrow_dll_bw_hz,
                           narrow_after_ms=cfg.narrow_after_ms, spacing_chips=cfg.spacing_chips)
@@ -356,6 +361,20 @@ class AdversaryTrack:
         if self._subtracted[0] != shape:
             self._subtracted = (shape, shaped_bank(self.prn, self.channel.fs_hz, shape))
         return self._subtracted[1]
+
+    def seat_twin(self, meter: ChipShapeMeter) -> None:
+        """Once the shape is decided: a suspected twin, or a twin unknown to a lone track, where the meter placed it
+        on the shape (none: a suspected one was the front end's rounding). A suspect the meter did not measure is
+        followed jointly where the two-path fit placed it."""
+        if self.legit_offset_chips is not None and self.suspect_chips is None:
+            return
+        if self.prn not in meter.measured:
+            self.legit_offset_chips, self.suspect_chips = self.suspect_chips, None
+            return
+        twin = meter.twins.get(self.prn)
+        self.legit_offset_chips, self.suspect_chips = (None if twin is None else twin[0]), None
+        if not self._joint():
+            self.legit_offset_chips = None
 
     def track(self, tracked: np.ndarray, base_sample: int) -> None:
         """The tracking half: reads samples only, so several tracks can run at once (the kernels release the GIL)."""
@@ -633,9 +652,14 @@ class CancellerStage:
     def end_sample(self) -> int:
         return self.base + self._raw.size
 
-    def add(self, peak: Peak, peak_sample: int, legit_offset_chips: float | None = None) -> AdversaryTrack:
+    def add(self, peak: Peak, peak_sample: int, legit_offset_chips: float | None = None,
+            suspect: bool = False) -> AdversaryTrack:
+        deferred = suspect and legit_offset_chips is not None and abs(legit_offset_chips) < TWIN_NEAR_CHIPS and \
+            self.index == 0 and self.front_end is not None and not self.front_end.done
         track = AdversaryTrack(peak.prn, self.fs_hz, self.if_hz, peak, peak_sample, self.end_sample, self.cfg,
-                               self.index, legit_offset_chips, self.front_end)
+                               self.index, None if deferred else legit_offset_chips, self.front_end)
+        if deferred:
+            track.suspect_chips = legit_offset_chips
         self.tracks[peak.prn] = track
         return track
 
@@ -711,8 +735,10 @@ class CancellerStage:
             if seen is not None:
                 tr, y, amplitudes, noise, block = seen
                 self.front_end.add(tr.prn, y, amplitudes, noise, block,
-                                   tr.legit_offset_chips if tr._joint() else None)
-        self.front_end.fit_when_ready()
+                                   tr.legit_offset_chips if tr._joint() else None, tr.suspect_chips)
+        if self.front_end.fit_when_ready():
+            for tr in self.tracks.values():
+                tr.seat_twin(self.front_end)
 
     def flush(self) -> np.ndarray:
         out = self._work
@@ -734,11 +760,12 @@ class Canceller:
     def prns(self) -> set[int]:
         return {p for s in self.stages for p in s.tracks}
 
-    def cancel(self, peak: Peak, peak_sample: int, stage: int = 0,
-               legit_code_phase_chips: float | None = None, removal: bool = False) -> AdversaryTrack | None:
+    def cancel(self, peak: Peak, peak_sample: int, stage: int = 0, legit_code_phase_chips: float | None = None,
+               removal: bool = False, suspect: bool = False) -> AdversaryTrack | None:
         """Start cancelling a peak at the given stage (0 = the first pass); None past the iteration bound.
         legit_code_phase_chips: where the same PRN's legitimate peak is, at the same instant, when known.
-        removal: one stage past the bound, for what is left of a PRN given up (its remaining signal taken out)."""
+        removal: one stage past the bound, for what is left of a PRN given up (its remaining signal taken out).
+        suspect: the legitimate peak was placed by a two-path fit on ideal chips' model only (AdversaryTrack.suspect_chips)."""
         if stage >= self.cfg.max_stages + (1 if removal else 0):
             return None
         while len(self.stages) <= stage:   # a new stage takes the previous one's output from its next sample on
@@ -748,7 +775,7 @@ class Canceller:
         offset = None
         if legit_code_phase_chips is not None:
             offset = chips_offset(legit_code_phase_chips, peak.code_phase_chips)
-        return self.stages[stage].add(peak, peak_sample, offset)
+        return self.stages[stage].add(peak, peak_sample, offset, suspect)
 
     def drop(self, prn: int) -> None:
         """Stop cancelling a PRN in every stage (what was cancelled is found to be the legitimate signal)."""

@@ -48,6 +48,12 @@ SHAPED_SIGNIFICANT = 2500.0
 RIDGE = 1e-4                  # a little weight on the smallest response: the knots beyond the band are not seen
 FIT_ROUNDS = 4
 OUTLIER_FACTOR = 5.0          # a spoofer its own shaped fit leaves this many times the usual is left out of the shape
+# Once the shape is decided, each spoofer's twin is placed on it: a twin this strong against its spoofer (20 dB under
+# it) or stronger is a signal (the shape's own error is 33 dB down, the noise of one spoofer's sums 40-48 dB); a
+# suspected twin (the canceller's two-path fit on ideal chips placed it this close, TWIN_NEAR_CHIPS) is searched down
+# to SUSPECT_NEAREST_CHIPS, where the fit's own twin and the spoofer's place part
+TWIN_MIN_GAIN = 0.1
+SUSPECT_NEAREST_CHIPS = 0.1
 
 
 @dataclass(frozen=True)
@@ -190,6 +196,7 @@ class _Seen:
     overlap: np.ndarray       # C (lags, knots), from one of its periods
     rectangular: np.ndarray   # (lags): the same for rectangular chips
     twin_chips: float | None  # a twin the canceller already fits jointly (its offset), else searched
+    suspect_chips: float | None = None   # a twin the canceller holds back until the shape is known (its offset)
 
 
 def overlap_matrix(prn: int, block: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -215,10 +222,13 @@ class ChipShapeMeter:
         self.distance_db: float | None = None   # the fitted shape's distance from rectangular chips
         self.explained_db: float | None = None  # what it leaves of the sums, against what ideal chips leave
         self.explained: float | None = None     # the same as a difference, in units of the noise
+        self.twins: dict[int, tuple[float, float]] = {}   # each spoofer measured: its twin on the decided shape,
+                                                          # (offset from the spoofer, chips; gain), TWIN_MIN_GAIN up
+        self.measured: set[int] = set()
         self._seen: dict[int, _Seen] = {}
 
     def add(self, prn: int, y: np.ndarray, amplitudes: np.ndarray, noise_power: float, block: np.ndarray,
-            twin_chips: float | None) -> None:
+            twin_chips: float | None, suspect_chips: float | None = None) -> None:
         """A spoofer's bank over LAGS_CHIPS (periods, lags) on samples it is not yet subtracted from, and its
         amplitude per period (the correlation at lag 0 / samples)."""
         ok = np.isfinite(y).all(axis=1) & np.isfinite(amplitudes)
@@ -229,7 +239,8 @@ class ChipShapeMeter:
         energy = float(np.sum(np.abs(a) ** 2))
         seen = self._seen.get(prn)
         if seen is None:
-            self._seen[prn] = _Seen(s, energy, energy * noise_power, *overlap_matrix(prn, block), twin_chips)
+            self._seen[prn] = _Seen(s, energy, energy * noise_power, *overlap_matrix(prn, block), twin_chips,
+                                    suspect_chips)
         else:
             seen.s += s
             seen.energy += energy
@@ -262,6 +273,13 @@ class ChipShapeMeter:
         self._seen.clear()
         if not items:
             return True
+        self.measured = {prn for prn, _ in items}
+        model, gains = self._decide(items)
+        self.twins = {prn: twin for prn, v in items if (twin := placed_twin(prn, v, gains, model)) is not None}
+        return True
+
+    def _decide(self, items: list) -> tuple:
+        """The shape from every spoofer's sums (self.shape), and the model and gains decided."""
         # each spoofer alone first, ideal chips' twins first (their one gain cannot bend to a twin in the wrong place,
         # as the knots' can); then the knots over the spoofers they fit alike: one whose twin sits where the shape is
         # (GPS-SDR-SIM, 1 km, a joint track 0.6 chip off) would bend the front end to it
@@ -277,7 +295,8 @@ class ChipShapeMeter:
         self.explained = rectangular_left - shaped_left
         if self.explained_db < SHAPED_BETTER_DB and self.explained > SHAPED_SIGNIFICANT:
             self.shape = ChipShape(tuple(float(g) for g in gains))
-        return True
+            return _ShapedModel(), gains
+        return _RectangularModel(), np.ones(1)
 
 
 def rectangular_distance_db(gains: np.ndarray) -> float:
@@ -370,8 +389,20 @@ def _best_place(prn: int, v: _Seen, gains: np.ndarray, model, twin: tuple[float,
     return float(places[int(np.argmin(misfit))])
 
 
+def placed_twin(prn: int, v: _Seen, gains: np.ndarray, model) -> tuple[float, float] | None:
+    """A spoofer's twin on the decided model, (offset from the spoofer, chips; gain), when TWIN_MIN_GAIN strong or
+    more: its place and the spoofer's fitted in turn, a suspected twin searched from SUSPECT_NEAREST_CHIPS out."""
+    place, twin = 0.0, (0.0, 0.0)
+    for _ in range(FIT_ROUNDS):
+        twin = _best_twin(prn, v, gains, model, place=place,
+                          nearest=SUSPECT_NEAREST_CHIPS if v.suspect_chips is not None else TWIN_NEAR_CHIPS)
+        place = _best_place(prn, v, gains, model, twin)
+    d, c = twin
+    return (d - place, c) if abs(c) >= TWIN_MIN_GAIN else None
+
+
 def _best_twin(prn: int, v: _Seen, gains: np.ndarray, model, guess: tuple[float, float] | None = None,
-               place: float = 0.0) -> tuple[float, float]:
+               place: float = 0.0, nearest: float = TWIN_NEAR_CHIPS) -> tuple[float, float]:
     """The twin's (offset, gain) that best explains what the model leaves of this spoofer's sums (the spoofer
     `place` chips from its replica), near the canceller's own twin or a guess when there is one; (0, 0) when none
     explains anything."""
@@ -381,7 +412,7 @@ def _best_twin(prn: int, v: _Seen, gains: np.ndarray, model, guess: tuple[float,
     elif guess is not None and guess[1]:
         candidates = guess[0] + np.arange(-TWIN_GUESS_CHIPS, TWIN_GUESS_CHIPS + 1e-9, 0.01)
     else:
-        side = np.arange(TWIN_NEAR_CHIPS, TWIN_REACH_CHIPS + 1e-9, TWIN_STEP_CHIPS)
+        side = np.arange(nearest, TWIN_REACH_CHIPS + 1e-9, TWIN_STEP_CHIPS)
         candidates = np.concatenate([-side[::-1], side])
     best, arg = 0.0, (0.0, 0.0)
     response = model.twin_response(prn, gains)
