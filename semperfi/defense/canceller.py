@@ -319,10 +319,11 @@ class AdversaryTrack:
         self.front_end = front_end     # the chips' shape as received (rectangular without one)
         self._subtracted: tuple[ChipShape | None, CodeBank | None] = (None, None)   # the shape and its bank
         self.legit_offset_chips = legit_offset_chips
-        # a twin the two-path fit placed this close while the chips' shape is unknown: a front end's rounded chips
-        # give a strong lone signal such a second path (chip_shape.TWIN_NEAR_CHIPS); tracked alone until the shape
-        # is measured, then jointly (where the joint fits, on the shape, tell a twin from the rounding)
+        # a twin the two-path fit placed within TWIN_NEAR_CHIPS on ideal chips' model: a front end's rounded chips
+        # give a strong lone signal such a second path. It is followed alone (a joint track's amplitudes, split
+        # between the two, would hide the rounding from the meter) until the meter places it on the shape (seat_twin)
         self.suspect_chips: float | None = None
+        self.dismissed_chips: float | None = None   # a suspected twin the meter found no signal
         loop = LoopConfig(pll_bw_hz=cfg.pll_bw_hz, dll_bw_hz=cfg.dll_bw_hz, pull_in_ms=cfg.pull_in_ms,
                           min_cn0_dbhz=20.0, dll_narrow_bw_hz=cfg.narrow_dll_bw_hz,
                           narrow_after_ms=cfg.narrow_after_ms, spacing_chips=cfg.spacing_chips)
@@ -362,19 +363,18 @@ class AdversaryTrack:
             self._subtracted = (shape, shaped_bank(self.prn, self.channel.fs_hz, shape))
         return self._subtracted[1]
 
-    def seat_twin(self, meter: ChipShapeMeter) -> None:
-        """Once the shape is decided: a suspected twin, or a twin unknown to a lone track, where the meter placed it
-        on the shape (none: a suspected one was the front end's rounding). A suspect the meter did not measure is
-        followed jointly where the two-path fit placed it."""
+    def seat_twin(self, twin: tuple[float, float] | None) -> None:
+        """The twin the meter judged (ChipShapeMeter.fit_when_ready: offset from the spoofer, dB under it; None:
+        none), followed jointly where it leaks into the spoofer: a suspected one's, and one a lone track knew nothing
+        of (a synchronized attacker's twin a chip or two off, hidden in the spoofer at the alarm)."""
         if self.legit_offset_chips is not None and self.suspect_chips is None:
             return
-        if self.prn not in meter.measured:
-            self.legit_offset_chips, self.suspect_chips = self.suspect_chips, None
-            return
-        twin = meter.twins.get(self.prn)
-        self.legit_offset_chips, self.suspect_chips = (None if twin is None else twin[0]), None
+        suspect, self.suspect_chips = self.suspect_chips, None
+        self.legit_offset_chips = None if twin is None else twin[0]
         if not self._joint():
             self.legit_offset_chips = None
+        if suspect is not None and self.legit_offset_chips is None:
+            self.dismissed_chips = suspect
 
     def track(self, tracked: np.ndarray, base_sample: int) -> None:
         """The tracking half: reads samples only, so several tracks can run at once (the kernels release the GIL)."""
@@ -652,13 +652,14 @@ class CancellerStage:
     def end_sample(self) -> int:
         return self.base + self._raw.size
 
-    def add(self, peak: Peak, peak_sample: int, legit_offset_chips: float | None = None,
-            suspect: bool = False) -> AdversaryTrack:
-        deferred = suspect and legit_offset_chips is not None and abs(legit_offset_chips) < TWIN_NEAR_CHIPS and \
-            self.index == 0 and self.front_end is not None and not self.front_end.done
+    def add(self, peak: Peak, peak_sample: int, legit_offset_chips: float | None = None) -> AdversaryTrack:
+        # a twin this close was placed by a two-path fit on ideal chips' model (no CAF parts two peaks so close)
+        meter = self.front_end
+        suspected = legit_offset_chips is not None and abs(legit_offset_chips) < TWIN_NEAR_CHIPS and \
+            meter is not None and not (meter.done and meter.shape.rectangular)
         track = AdversaryTrack(peak.prn, self.fs_hz, self.if_hz, peak, peak_sample, self.end_sample, self.cfg,
-                               self.index, None if deferred else legit_offset_chips, self.front_end)
-        if deferred:
+                               self.index, None if suspected else legit_offset_chips, self.front_end)
+        if suspected:
             track.suspect_chips = legit_offset_chips
         self.tracks[peak.prn] = track
         return track
@@ -681,7 +682,8 @@ class CancellerStage:
         longest_first = sorted(tracks, key=lambda item: not item[1]._joint())
         run_each(lambda item: join() if item is None else item[1].track(self._raw, self.base), [None, *longest_first])
         self._work = work
-        if self.index == 0 and self.front_end is not None and not self.front_end.done:
+        if self.front_end is not None and (self.index == 0 and not self.front_end.done
+                                           or any(tr.suspect_chips is not None for _, tr in tracks)):
             self._measure_front_end([tr for _, tr in tracks])
         planned = [(tr, tr.prepare(self._work, self.base)) for _, tr in tracks]
         planned = [(tr, p) for tr, p in planned if p is not None]
@@ -719,7 +721,8 @@ class CancellerStage:
 
     def _measure_front_end(self, tracks: list[AdversaryTrack]) -> None:
         """The first stage's settled spoofers, on the samples before any subtraction, measure the chips' shape (before
-        the replicas of this buffer and the held samples are subtracted with it)."""
+        the replicas of this buffer and the held samples are subtracted with it); then any stage's spoofers with a
+        suspected twin, until the meter places it."""
         def measure(tr: AdversaryTrack):
             first_ms, prompts, blocks = tr._tracked
             settled = first_ms + np.arange(prompts.size) >= self.cfg.pull_in_ms
@@ -728,17 +731,20 @@ class CancellerStage:
             blocks, prompts = blocks[settled], prompts[settled]
             y, power = correlator_bank(self._raw, self.base, blocks, tr.channel.bank, LAGS_CHIPS)
             return tr, y, prompts / blocks[:, 1], noise_power(power, blocks), blocks[len(blocks) // 2]
-        # the strongest only: a spoofer 6 dB weaker brings a quarter of the SNR for the same cost (a 101-lag bank)
-        strongest = max((tr.channel.cn0_dbhz for tr in tracks if np.isfinite(tr.channel.cn0_dbhz)), default=np.nan)
-        tracks = [tr for tr in tracks if not tr.channel.cn0_dbhz < strongest - MEASURED_WITHIN_DB]
+        if self.front_end.done:
+            tracks = [tr for tr in tracks if tr.suspect_chips is not None]
+        else:   # the strongest only: a spoofer 6 dB weaker brings a quarter of the SNR for the same cost (101 lags)
+            strongest = max((tr.channel.cn0_dbhz for tr in tracks if np.isfinite(tr.channel.cn0_dbhz)), default=np.nan)
+            tracks = [tr for tr in tracks if not tr.channel.cn0_dbhz < strongest - MEASURED_WITHIN_DB
+                      or tr.suspect_chips is not None]
         for seen in run_each(measure, tracks):
             if seen is not None:
                 tr, y, amplitudes, noise, block = seen
                 self.front_end.add(tr.prn, y, amplitudes, noise, block,
                                    tr.legit_offset_chips if tr._joint() else None, tr.suspect_chips)
-        if self.front_end.fit_when_ready():
-            for tr in self.tracks.values():
-                tr.seat_twin(self.front_end)
+        for prn, twin in self.front_end.fit_when_ready().items():
+            if prn in self.tracks:
+                self.tracks[prn].seat_twin(twin)
 
     def flush(self) -> np.ndarray:
         out = self._work
@@ -760,12 +766,11 @@ class Canceller:
     def prns(self) -> set[int]:
         return {p for s in self.stages for p in s.tracks}
 
-    def cancel(self, peak: Peak, peak_sample: int, stage: int = 0, legit_code_phase_chips: float | None = None,
-               removal: bool = False, suspect: bool = False) -> AdversaryTrack | None:
+    def cancel(self, peak: Peak, peak_sample: int, stage: int = 0,
+               legit_code_phase_chips: float | None = None, removal: bool = False) -> AdversaryTrack | None:
         """Start cancelling a peak at the given stage (0 = the first pass); None past the iteration bound.
         legit_code_phase_chips: where the same PRN's legitimate peak is, at the same instant, when known.
-        removal: one stage past the bound, for what is left of a PRN given up (its remaining signal taken out).
-        suspect: the legitimate peak was placed by a two-path fit on ideal chips' model only (AdversaryTrack.suspect_chips)."""
+        removal: one stage past the bound, for what is left of a PRN given up (its remaining signal taken out)."""
         if stage >= self.cfg.max_stages + (1 if removal else 0):
             return None
         while len(self.stages) <= stage:   # a new stage takes the previous one's output from its next sample on
@@ -775,7 +780,7 @@ class Canceller:
         offset = None
         if legit_code_phase_chips is not None:
             offset = chips_offset(legit_code_phase_chips, peak.code_phase_chips)
-        return self.stages[stage].add(peak, peak_sample, offset, suspect)
+        return self.stages[stage].add(peak, peak_sample, offset)
 
     def drop(self, prn: int) -> None:
         """Stop cancelling a PRN in every stage (what was cancelled is found to be the legitimate signal)."""
@@ -807,6 +812,8 @@ class Canceller:
                          "attenuation_db": [f">={v}" if lower else v for v, lower in tr.attenuation_db]}
                 if tr.legit_offset_chips is not None:
                     entry["legit_offset_chips"] = round(float(tr.legit_offset_chips), 3)
+                if tr.dismissed_chips is not None:   # the front end's rounding, not a twin
+                    entry["dismissed_twin_chips"] = round(float(tr.dismissed_chips), 3)
                 if tr.twin_advantage_db is not None:
                     entry["twin_advantage_db"] = round(tr.twin_advantage_db, 1)
                 out.setdefault(prn, []).append(entry)

@@ -39,6 +39,8 @@ TWIN_MAX_GAIN = 4.0           # a twin at most this much stronger than its spoof
 TWIN_STEP_CHIPS = 0.05
 TWIN_GUESS_CHIPS = 0.3        # how far from ideal chips' twin the shaped fit's is searched
 MEASURED_SNR_DB = 52.0        # the spoofers' summed correlations hold this much before the shape is fitted
+MEASURED_MAX_PERIODS = 3000   # or one of them was summed this long (weak spoofers: the shape fitted on less)
+JUDGED_SNR_DB = 40.0          # a twin is placed on one spoofer's sums this strong
 # The shape is taken when it leaves this much less of the sums than ideal chips do, and by more than noise could:
 # the fit's squares are in units of each lag's noise variance, and the knots' extra gains, smooth across the lags as
 # the noise is, took 480 of them from noise alone on one of our simulator's +6 dB spoofers (ideal chips); ideal chips
@@ -48,11 +50,14 @@ SHAPED_SIGNIFICANT = 2500.0
 RIDGE = 1e-4                  # a little weight on the smallest response: the knots beyond the band are not seen
 FIT_ROUNDS = 4
 OUTLIER_FACTOR = 5.0          # a spoofer its own shaped fit leaves this many times the usual is left out of the shape
-# Once the shape is decided, each spoofer's twin is placed on it: a twin this strong against its spoofer (20 dB under
-# it) or stronger is a signal (the shape's own error is 33 dB down, the noise of one spoofer's sums 40-48 dB); a
-# suspected twin (the canceller's two-path fit on ideal chips placed it this close, TWIN_NEAR_CHIPS) is searched down
-# to SUSPECT_NEAREST_CHIPS, where the fit's own twin and the spoofer's place part
-TWIN_MIN_GAIN = 0.1
+# On a shape, each spoofer's twin is placed on it (placed_twin) where it lies TWIN_MIN_DB under the spoofer or less: the
+# shape's own error lies 25-31 dB down; the noise of one spoofer's sums, JUDGED_SNR_DB strong, left 17.7 dB at most
+# near it (a twin searched from SUSPECT_NEAREST_CHIPS on our own synthetic correlations), 15 dB at 32 dB. A suspected
+# twin (the canceller's two-path fit on ideal chips placed it within TWIN_NEAR_CHIPS, found there 13 dB under its
+# spoofer or less: DetectorConfig.two_path_min_ratio_db) is searched that near too, and kept there SUSPECT_MIN_DB
+# under it or less.
+TWIN_MIN_DB = 20.0
+SUSPECT_MIN_DB = 13.0
 SUSPECT_NEAREST_CHIPS = 0.1
 
 
@@ -197,6 +202,12 @@ class _Seen:
     rectangular: np.ndarray   # (lags): the same for rectangular chips
     twin_chips: float | None  # a twin the canceller already fits jointly (its offset), else searched
     suspect_chips: float | None = None   # a twin the canceller holds back until the shape is known (its offset)
+    # over neighbouring periods b, b+1 (placed_twin): sum Re(y_b conj(y_b+1)), sum Re(a_b conj(y_b+1) + y_b conj(a_b+1))
+    # per lag, and sum Re(a_b conj(a_b+1))
+    next_yy: np.ndarray | float = 0.0
+    next_ay: np.ndarray | float = 0.0
+    next_aa: float = 0.0
+    periods: int = 0
 
 
 def overlap_matrix(prn: int, block: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -222,9 +233,9 @@ class ChipShapeMeter:
         self.distance_db: float | None = None   # the fitted shape's distance from rectangular chips
         self.explained_db: float | None = None  # what it leaves of the sums, against what ideal chips leave
         self.explained: float | None = None     # the same as a difference, in units of the noise
-        self.twins: dict[int, tuple[float, float]] = {}   # each spoofer measured: its twin on the decided shape,
-                                                          # (offset from the spoofer, chips; gain), TWIN_MIN_GAIN up
-        self.measured: set[int] = set()
+        # each spoofer measured: its twin on the decided shape (offset from the spoofer, chips; dB under it), or None
+        self.twins: dict[int, tuple[float, float] | None] = {}
+        self._model, self._gains = _RectangularModel(), np.ones(1)   # decided
         self._seen: dict[int, _Seen] = {}
 
     def add(self, prn: int, y: np.ndarray, amplitudes: np.ndarray, noise_power: float, block: np.ndarray,
@@ -232,20 +243,24 @@ class ChipShapeMeter:
         """A spoofer's bank over LAGS_CHIPS (periods, lags) on samples it is not yet subtracted from, and its
         amplitude per period (the correlation at lag 0 / samples)."""
         ok = np.isfinite(y).all(axis=1) & np.isfinite(amplitudes)
-        if self.done or not ok.any():
+        if (self.done and suspect_chips is None) or not ok.any():
             return
         a = amplitudes[ok]
         s = np.real(y[ok].T @ np.conj(a))
         energy = float(np.sum(np.abs(a) ** 2))
         seen = self._seen.get(prn)
         if seen is None:
-            self._seen[prn] = _Seen(s, energy, energy * noise_power, *overlap_matrix(prn, block), twin_chips,
-                                    suspect_chips)
-        else:
-            seen.s += s
-            seen.energy += energy
-            seen.noise += energy * noise_power
-            seen.twin_chips = twin_chips
+            seen = self._seen[prn] = _Seen(np.zeros(LAGS_CHIPS.size), 0.0, 0.0, *overlap_matrix(prn, block), twin_chips)
+        seen.s += s
+        seen.energy += energy
+        seen.noise += energy * noise_power
+        pairs = ok[:-1] & ok[1:]
+        y0, y1, a0, a1 = y[:-1][pairs], y[1:][pairs], amplitudes[:-1][pairs], amplitudes[1:][pairs]
+        seen.next_yy = seen.next_yy + np.sum(np.real(y0 * np.conj(y1)), axis=0)
+        seen.next_ay = seen.next_ay + np.sum(np.real(a0[:, None] * np.conj(y1) + y0 * np.conj(a1)[:, None]), axis=0)
+        seen.next_aa += float(np.sum(np.real(a0 * np.conj(a1))))
+        seen.periods += int(ok.sum())
+        seen.twin_chips, seen.suspect_chips = twin_chips, suspect_chips
 
     def as_event(self) -> dict:
         """What was decided, for the events: the shape, and how the fit told it from ideal chips."""
@@ -264,19 +279,37 @@ class ChipShapeMeter:
         total = sum(v.energy ** 2 / v.noise for v in self._seen.values() if v.noise > 0)
         return float(10 * np.log10(total)) if total > 0 else -np.inf
 
-    def fit_when_ready(self) -> bool:
-        """Fits once the sums hold enough; True when the shape was just decided."""
-        if self.done or self.snr_db < MEASURED_SNR_DB:
-            return False
-        self.done = True
-        items = [(prn, v) for prn, v in self._seen.items() if v.energy > 0 and v.noise > 0]
-        self._seen.clear()
-        if not items:
-            return True
-        self.measured = {prn for prn, _ in items}
-        model, gains = self._decide(items)
-        self.twins = {prn: twin for prn, v in items if (twin := placed_twin(prn, v, gains, model)) is not None}
-        return True
+    def fit_when_ready(self) -> dict[int, tuple[float, float] | None]:
+        """Fits the shape once the sums hold MEASURED_SNR_DB (or one spoofer was summed MEASURED_MAX_PERIODS), and
+        on a shape places the twins of the spoofers summed to JUDGED_SNR_DB; after, those of the suspects still
+        summed. Returns the twins just judged (also in self.twins): PRN -> (offset from the spoofer, chips; dB under
+        it) or None; a suspect on ideal chips, or too weak to tell after MEASURED_MAX_PERIODS, as the canceller's
+        two-path fit placed it (dB: nan)."""
+        judged: dict[int, tuple[float, float] | None] = {}
+        if not self.done:
+            if self.snr_db < MEASURED_SNR_DB and max((v.periods for v in self._seen.values()), default=0) < \
+                    MEASURED_MAX_PERIODS:
+                return judged
+            self.done = True
+            items = {prn: v for prn, v in self._seen.items() if v.energy > 0 and v.noise > 0}
+            self._seen = {prn: v for prn, v in items.items() if v.suspect_chips is not None}   # go on being summed
+            if not items:
+                return judged
+            self._model, self._gains = self._decide(list(items.items()))
+            if not self.shape.rectangular:
+                judged = {prn: placed_twin(prn, v, self._gains, self._model) for prn, v in items.items()
+                          if _snr_db(v) >= JUDGED_SNR_DB}
+        for prn, v in list(self._seen.items()):
+            if prn in judged:
+                pass
+            elif self.shape.rectangular or (v.periods >= MEASURED_MAX_PERIODS and _snr_db(v) < JUDGED_SNR_DB):
+                judged[prn] = (float(v.suspect_chips), float("nan"))
+            elif _snr_db(v) >= JUDGED_SNR_DB:
+                judged[prn] = placed_twin(prn, v, self._gains, self._model)
+            if prn in judged:
+                del self._seen[prn]
+        self.twins.update(judged)
+        return judged
 
     def _decide(self, items: list) -> tuple:
         """The shape from every spoofer's sums (self.shape), and the model and gains decided."""
@@ -297,6 +330,10 @@ class ChipShapeMeter:
             self.shape = ChipShape(tuple(float(g) for g in gains))
             return _ShapedModel(), gains
         return _RectangularModel(), np.ones(1)
+
+
+def _snr_db(v: _Seen) -> float:
+    return float(10 * np.log10(v.energy ** 2 / v.noise)) if v.energy > 0 and v.noise > 0 else -np.inf
 
 
 def rectangular_distance_db(gains: np.ndarray) -> float:
@@ -390,15 +427,42 @@ def _best_place(prn: int, v: _Seen, gains: np.ndarray, model, twin: tuple[float,
 
 
 def placed_twin(prn: int, v: _Seen, gains: np.ndarray, model) -> tuple[float, float] | None:
-    """A spoofer's twin on the decided model, (offset from the spoofer, chips; gain), when TWIN_MIN_GAIN strong or
-    more: its place and the spoofer's fitted in turn, a suspected twin searched from SUSPECT_NEAREST_CHIPS out."""
+    """A spoofer's twin on the decided model, (offset from the spoofer, chips; power under it, dB), when TWIN_MIN_DB
+    strong or more, from what the spoofer's replica leaves at each lag, r_b = y_b - a_b m (m the spoofer's
+    correlation on the model, fitted with its place and its phase-locked twin). A twin t_b at offset d leaves
+    t_b (T(lag - d) - T(-d) m) (T its correlation, its share of a_b taken out with the spoofer's), whatever its phase
+    and Doppler against the spoofer. Taken over neighbouring periods, Re(r_b conj(r_b+1)) holds the twin's power,
+    turned by a few hundredths of a radian, and no noise (each period's is its own; in r_b r_b* it would be there,
+    correlated between the lags as a front end shapes it), normalised by the same product of the spoofer's
+    amplitudes (a bit's edge turns both alike). A suspected twin is searched from SUSPECT_NEAREST_CHIPS out."""
+    nearest = SUSPECT_NEAREST_CHIPS if v.suspect_chips is not None else TWIN_NEAR_CHIPS
     place, twin = 0.0, (0.0, 0.0)
     for _ in range(FIT_ROUNDS):
-        twin = _best_twin(prn, v, gains, model, place=place,
-                          nearest=SUSPECT_NEAREST_CHIPS if v.suspect_chips is not None else TWIN_NEAR_CHIPS)
+        twin = _best_twin(prn, v, gains, model, place=place, nearest=nearest)
         place = _best_place(prn, v, gains, model, twin)
-    d, c = twin
-    return (d - place, c) if abs(c) >= TWIN_MIN_GAIN else None
+    m = _moved(model.columns(v) @ gains[:, None], place)[:, 0]
+    if not v.next_aa > 0:
+        return None
+    left = (v.next_yy - m * v.next_ay + m * m * v.next_aa) / v.next_aa
+    side = np.arange(nearest, TWIN_REACH_CHIPS + 1e-9, TWIN_STEP_CHIPS)
+    response = model.twin_response(prn, gains)
+    at_zero = int(np.argmin(np.abs(LAGS_CHIPS)))
+    best, found = 0.0, None
+    for d in np.concatenate([-side[::-1], side]) + place:
+        t = response(d)
+        u2 = (t - t[at_zero] * m) ** 2
+        weight = float(u2 @ u2)
+        if weight <= 0:
+            continue
+        p = float(u2 @ left) / weight
+        if p > 0 and p * p * weight > best:
+            best, found = p * p * weight, (float(d - place), p)
+    if found is None:
+        return None
+    floor_db = SUSPECT_MIN_DB if abs(found[0]) < TWIN_NEAR_CHIPS else TWIN_MIN_DB
+    if found[1] < 10 ** (-floor_db / 10):
+        return None
+    return found[0], float(-10 * np.log10(found[1]))
 
 
 def _best_twin(prn: int, v: _Seen, gains: np.ndarray, model, guess: tuple[float, float] | None = None,

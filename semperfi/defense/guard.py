@@ -826,7 +826,7 @@ class SpoofGuard:
             hidden = self._hidden_twin(x, peak)
             legit = legit if hidden is None else hidden
         stage = self._stages(prn)
-        if self.canceller.cancel(peak, peak_sample, stage, legit, suspect=hidden is not None) is None:
+        if self.canceller.cancel(peak, peak_sample, stage, legit) is None:
             self.gave_up[prn] = f"still spoofed after {stage} SIC iterations"
             self._emit("cancellation_refused", t_s, prn=prn, reason=self.gave_up[prn])
             return
