@@ -15,6 +15,10 @@ periods, is sum_k g_k C(lag, k), C the sampled rectangular replica's overlap wit
 for g, over every spoofer at once. A legitimate twin within a few chips adds its own copy of the shape at its offset,
 and the spoofer may sit a little off its replica (its twin pulls the tracking loop): both are fitted beside it. Ideal
 chips (GPS-SDR-SIM's own rendering) are kept unless the shape explains the correlations far better than they do.
+
+On a shape the meter also places each spoofer's twin (placed_twin), from the power its replica leaves at each lag: a
+strong spoofer's rounded chips look like two paths a quarter chip apart to the canceller's two-path fit on ideal
+chips' model, and such a suspected twin is followed alone until the meter has told it from the rounding.
 """
 
 import functools
@@ -270,7 +274,8 @@ class ChipShapeMeter:
                     "distance_db": round(float(self.distance_db), 1)}
         if not self.shape.rectangular:
             out |= {"taps_chips": [round(float(t), 4) for t in TAPS_CHIPS],
-                    "gains": [round(g, 4) for g in self.shape.gains]}
+                    "gains": [round(g, 4) for g in self.shape.gains],
+                    "twins": {str(prn): _twin_event(t) for prn, t in sorted(self.twins.items())}}
         return out
 
     @property
@@ -330,6 +335,13 @@ class ChipShapeMeter:
             self.shape = ChipShape(tuple(float(g) for g in gains))
             return _ShapedModel(), gains
         return _RectangularModel(), np.ones(1)
+
+
+def _twin_event(twin: tuple[float, float] | None) -> list | None:
+    """A judged twin for the events: [chips from the spoofer, dB under it (None: as the two-path fit placed it)]."""
+    if twin is None:
+        return None
+    return [round(twin[0], 3), None if np.isnan(twin[1]) else round(twin[1], 1)]
 
 
 def _snr_db(v: _Seen) -> float:
