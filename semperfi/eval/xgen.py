@@ -48,7 +48,11 @@ RECEIVER_SETTINGS = ("pvt.troposphere=false",)
 MIX_BLOCK_S = 1.0
 # A receiver's front end (Case.front_end_hz): the scenes rendered FRONT_END_UP times faster, the mix through an
 # analog-like low-pass (Butterworth, FRONT_END_ORDER) and decimated -- chips rounded as every real recording's are,
-# where gps-sdr-sim alone samples ideal rectangular chips at the output rate
+# where gps-sdr-sim alone samples ideal rectangular chips at the output rate. The rendering still places each chip's
+# edges on its own sample grid, 1/10 chip apart at 4x: a residue of every signal no canceller can model (a real
+# front end filters exact edges) -- on a synthetic +10 dB scene behind 1 MHz at 2.6 MSa/s the spoofers were left
+# 22.4 dB down rendered 4x faster, 27.9 dB at 16x, while what was left correlating with their codes lay 34-43 dB
+# down either way: noise-like, it raises no receiver's floor measurably. 16x is four times the disk (10 GB a scene).
 FRONT_END_UP = 4
 FRONT_END_ORDER = 5
 F_L1_HZ = 1575.42e6
