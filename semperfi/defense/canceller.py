@@ -277,6 +277,7 @@ LEAKING_SHARE = 0.01
 # off leaks, and pulls its spoofer's early-late balance (GPS-SDR-SIM behind a 1 MHz front end, 1 km: spoofers 0.01-0.05
 # chip off their replicas, twins 1-2 chips away)
 SHAPED_REACH_CHIPS = TAP_REACH_CHIPS
+LAGS_AT_ZERO = int(np.argmin(np.abs(LAGS_CHIPS)))
 BACKFILL_COHERENT_WITHIN_CHIPS_S = 0.5   # the DLL's code rate and the carrier's, apart by less: the carrier's
 TWIN_GAIN = 0.5                   # fraction of each buffer's measured twin offset error applied
 # A legitimate signal within BIASED_WITHIN_CHIPS of its spoofer keeps, after cancellation, the spoofer's residual
@@ -320,8 +321,8 @@ class AdversaryTrack:
         self._subtracted: tuple[ChipShape | None, CodeBank | None] = (None, None)   # the shape and its bank
         self.legit_offset_chips = legit_offset_chips
         # a twin the two-path fit placed within TWIN_NEAR_CHIPS on ideal chips' model: a front end's rounded chips
-        # give a strong lone signal such a second path. It is followed alone (a joint track's amplitudes, split
-        # between the two, would hide the rounding from the meter) until the meter places it on the shape (seat_twin)
+        # give a strong lone signal such a second path. Followed jointly (on ideal chips it is a twin) until the
+        # meter has measured the shape and placed the spoofer's twin on it (seat_twin): its offset when placed
         self.suspect_chips: float | None = None
         self.dismissed_chips: float | None = None   # a suspected twin the meter found no signal
         loop = LoopConfig(pll_bw_hz=cfg.pll_bw_hz, dll_bw_hz=cfg.dll_bw_hz, pull_in_ms=cfg.pull_in_ms,
@@ -365,11 +366,13 @@ class AdversaryTrack:
 
     def seat_twin(self, twin: tuple[float, float] | None) -> None:
         """The twin the meter judged (ChipShapeMeter.fit_when_ready: offset from the spoofer, dB under it; None:
-        none), followed jointly where it leaks into the spoofer: a suspected one's, and one a lone track knew nothing
-        of (a synchronized attacker's twin a chip or two off, hidden in the spoofer at the alarm)."""
-        if self.legit_offset_chips is not None and self.suspect_chips is None:
-            return
+        none), followed jointly where it leaks into the spoofer: a suspected twin's place (none: the front end's
+        rounding, dismissed), and a twin a lone track knew nothing of (a synchronized attacker's twin a chip or two
+        off, hidden in the spoofer at the alarm). A judgement without a level (dB nan: ideal chips, or too weak to
+        tell) leaves the joint track as it is."""
         suspect, self.suspect_chips = self.suspect_chips, None
+        if (self.legit_offset_chips is not None and suspect is None) or (twin is not None and np.isnan(twin[1])):
+            return
         self.legit_offset_chips = None if twin is None else twin[0]
         if not self._joint():
             self.legit_offset_chips = None
@@ -658,7 +661,7 @@ class CancellerStage:
         suspected = legit_offset_chips is not None and abs(legit_offset_chips) < TWIN_NEAR_CHIPS and \
             meter is not None and not (meter.done and meter.shape.rectangular)
         track = AdversaryTrack(peak.prn, self.fs_hz, self.if_hz, peak, peak_sample, self.end_sample, self.cfg,
-                               self.index, None if suspected else legit_offset_chips, self.front_end)
+                               self.index, legit_offset_chips, self.front_end)
         if suspected:
             track.suspect_chips = legit_offset_chips
         self.tracks[peak.prn] = track
@@ -730,7 +733,9 @@ class CancellerStage:
                 return None
             blocks, prompts = blocks[settled], prompts[settled]
             y, power = correlator_bank(self._raw, self.base, blocks, tr.channel.bank, LAGS_CHIPS)
-            return tr, y, prompts / blocks[:, 1], noise_power(power, blocks), blocks[len(blocks) // 2]
+            # a suspect's own prompt is tracked without its twin: on the raw samples, the rounding is all there
+            amplitudes = y[:, LAGS_AT_ZERO] if tr.suspect_chips is not None else prompts / blocks[:, 1]
+            return tr, y, amplitudes, noise_power(power, blocks), blocks[len(blocks) // 2]
         if self.front_end.done:
             tracks = [tr for tr in tracks if tr.suspect_chips is not None]
         else:   # the strongest only: a spoofer 6 dB weaker brings a quarter of the SNR for the same cost (101 lags)
@@ -740,8 +745,9 @@ class CancellerStage:
         for seen in run_each(measure, tracks):
             if seen is not None:
                 tr, y, amplitudes, noise, block = seen
-                self.front_end.add(tr.prn, y, amplitudes, noise, block,
-                                   tr.legit_offset_chips if tr._joint() else None, tr.suspect_chips)
+                self.front_end.add(tr.prn, y, amplitudes, noise, block,   # a suspect measured as one path
+                                   tr.legit_offset_chips if tr._joint() and tr.suspect_chips is None else None,
+                                   tr.suspect_chips)
         for prn, twin in self.front_end.fit_when_ready().items():
             if prn in self.tracks:
                 self.tracks[prn].seat_twin(twin)
