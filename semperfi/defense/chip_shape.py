@@ -18,7 +18,8 @@ chips (GPS-SDR-SIM's own rendering) are kept unless the shape explains the corre
 
 On a shape the meter also places each spoofer's twin (placed_twin), from the power its replica leaves at each lag: a
 strong spoofer's rounded chips look like two paths a quarter chip apart to the canceller's two-path fit on ideal
-chips' model, and such a suspected twin is followed alone until the meter has told it from the rounding.
+chips' model, and such a suspected twin is followed jointly (as on ideal chips, where it is a twin) until the meter
+has told it from the rounding; it is then dismissed or kept.
 """
 
 import functools
