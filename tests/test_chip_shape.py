@@ -215,9 +215,10 @@ def test_a_twin_is_placed_from_what_the_spoofers_replica_leaves_whatever_its_pha
 def test_a_strong_spoofers_rounded_chips_are_no_twin():
     """Behind a 1 MHz front end at 2.6 MSa/s, the two-path test on ideal chips' model finds a second path 0.25-0.3
     chip from each of three +15 dB spoofers, as strong as the spoofer: the rounding of its own chips. Handed to the
-    canceller as twins (as the guard does), they are followed jointly, as on ideal chips, until the shape is
-    measured; then the meter places the real twins (1, 1.7 and 2.7 chips off, 15 dB under) and dismisses the rest.
-    The rounding taken for twins throughout, the spoofers were cancelled 4 dB less (measured: 14.4 against 18.5 dB)."""
+    canceller as twins to defer (as the guard does under spoofers stronger than any satellite), they are not
+    followed until the shape is measured; then the meter places the real twins (1, 1.7 and 2.7 chips off, 15 dB
+    under) and dismisses the rest. The rounding taken for twins throughout, the spoofers were cancelled 4 dB less
+    (measured: 14.4 against 18.5 dB)."""
     fs = 2.6e6
     legit = [(3, 101.3, 1200.0, 0.3), (8, 400.7, -2100.0, 0.9), (14, 700.2, 300.0, 2.0)]
     spoofers = [(3, 100.3, 1200.0, 1.1), (8, 403.4, -2100.0, 2.0), (14, 701.9, 300.0, 0.5)]
@@ -234,10 +235,10 @@ def test_a_strong_spoofers_rounded_chips_are_no_twin():
                                 pfa=1e-6)
             apart = (fit.second_code_phase_chips - fit.code_phase_chips + 511.5) % 1023 - 511.5
             assert fit.significant and 0.2 <= abs(apart) < 0.6 and abs(fit.power_ratio_db) < 3.0, fit
-            track = c.cancel(peak, 0, 0, fit.second_code_phase_chips)
-            assert track.suspect_chips is not None and track.legit_offset_chips == track.suspect_chips
+            track = c.cancel(peak, 0, 0, fit.second_code_phase_chips, defer_twin=True)
+            assert track.suspect_chips is not None and track.legit_offset_chips is None
             if trusting:   # as before the shape could tell: a twin throughout
-                track.suspect_chips = None
+                track.legit_offset_chips, track.suspect_chips = track.suspect_chips, None
         step = int(0.05 * fs)
         y = np.concatenate([c.push(x[i:i + step]) for i in range(0, x.size, step)] + [c.flush()])
         steady = slice(int(1.0 * fs), x.size - int(0.1 * fs))

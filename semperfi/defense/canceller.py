@@ -277,7 +277,6 @@ LEAKING_SHARE = 0.01
 # off leaks, and pulls its spoofer's early-late balance (GPS-SDR-SIM behind a 1 MHz front end, 1 km: spoofers 0.01-0.05
 # chip off their replicas, twins 1-2 chips away)
 SHAPED_REACH_CHIPS = TAP_REACH_CHIPS
-LAGS_AT_ZERO = int(np.argmin(np.abs(LAGS_CHIPS)))
 BACKFILL_COHERENT_WITHIN_CHIPS_S = 0.5   # the DLL's code rate and the carrier's, apart by less: the carrier's
 TWIN_GAIN = 0.5                   # fraction of each buffer's measured twin offset error applied
 # A legitimate signal within BIASED_WITHIN_CHIPS of its spoofer keeps, after cancellation, the spoofer's residual
@@ -320,10 +319,12 @@ class AdversaryTrack:
         self.front_end = front_end     # the chips' shape as received (rectangular without one)
         self._subtracted: tuple[ChipShape | None, CodeBank | None] = (None, None)   # the shape and its bank
         self.legit_offset_chips = legit_offset_chips
-        # a twin the two-path fit placed within TWIN_NEAR_CHIPS on ideal chips' model: a front end's rounded chips
-        # give a strong lone signal such a second path. Followed jointly (on ideal chips it is a twin) until the
-        # meter has measured the shape and placed the spoofer's twin on it (seat_twin): its offset when placed
-        self.suspect_chips: float | None = None
+        # under a spoofer far stronger than any satellite (Canceller.cancel's defer_twin) a twin the two-path fit
+        # placed within TWIN_NEAR_CHIPS on ideal chips' model may be a front end's rounding of the spoofer's own
+        # chips: it is not followed until the meter has measured the shape and placed the spoofer's twin on it
+        # (seat_twin), nor is a twin it shows that the track knew nothing of
+        self.defer_twin = False
+        self.suspect_chips: float | None = None   # the suspected twin's offset, until judged
         self.dismissed_chips: float | None = None   # a suspected twin the meter found no signal
         loop = LoopConfig(pll_bw_hz=cfg.pll_bw_hz, dll_bw_hz=cfg.dll_bw_hz, pull_in_ms=cfg.pull_in_ms,
                           min_cn0_dbhz=20.0, dll_narrow_bw_hz=cfg.narrow_dll_bw_hz,
@@ -368,10 +369,13 @@ class AdversaryTrack:
         """The twin the meter judged (ChipShapeMeter.fit_when_ready: offset from the spoofer, dB under it; None:
         none), followed jointly where it leaks into the spoofer: a suspected twin's place (none: the front end's
         rounding, dismissed), and a twin a lone track knew nothing of (a synchronized attacker's twin a chip or two
-        off, hidden in the spoofer at the alarm). A judgement without a level (dB nan: ideal chips, or too weak to
-        tell) leaves the joint track as it is."""
+        off, hidden in the spoofer at the alarm); for a track that defers its twin only. A judgement without a level
+        (dB nan: ideal chips, or too weak to tell) puts a suspected twin where the two-path fit placed it."""
         suspect, self.suspect_chips = self.suspect_chips, None
-        if (self.legit_offset_chips is not None and suspect is None) or (twin is not None and np.isnan(twin[1])):
+        if not self.defer_twin or (self.legit_offset_chips is not None and suspect is None):
+            return
+        if twin is not None and np.isnan(twin[1]):   # a deferred suspect goes where the two-path fit placed it
+            self.legit_offset_chips = twin[0] if self.legit_offset_chips is None else self.legit_offset_chips
             return
         self.legit_offset_chips = None if twin is None else twin[0]
         if not self._joint():
@@ -655,14 +659,16 @@ class CancellerStage:
     def end_sample(self) -> int:
         return self.base + self._raw.size
 
-    def add(self, peak: Peak, peak_sample: int, legit_offset_chips: float | None = None) -> AdversaryTrack:
+    def add(self, peak: Peak, peak_sample: int, legit_offset_chips: float | None = None,
+            defer_twin: bool = False) -> AdversaryTrack:
         # a twin this close was placed by a two-path fit on ideal chips' model (no CAF parts two peaks so close)
         meter = self.front_end
-        suspected = legit_offset_chips is not None and abs(legit_offset_chips) < TWIN_NEAR_CHIPS and \
-            meter is not None and not (meter.done and meter.shape.rectangular)
+        defer_twin = defer_twin and meter is not None and not (meter.done and meter.shape.rectangular)
+        deferred = defer_twin and legit_offset_chips is not None and abs(legit_offset_chips) < TWIN_NEAR_CHIPS
         track = AdversaryTrack(peak.prn, self.fs_hz, self.if_hz, peak, peak_sample, self.end_sample, self.cfg,
-                               self.index, legit_offset_chips, self.front_end)
-        if suspected:
+                               self.index, None if deferred else legit_offset_chips, self.front_end)
+        track.defer_twin = defer_twin
+        if deferred:
             track.suspect_chips = legit_offset_chips
         self.tracks[peak.prn] = track
         return track
@@ -733,9 +739,7 @@ class CancellerStage:
                 return None
             blocks, prompts = blocks[settled], prompts[settled]
             y, power = correlator_bank(self._raw, self.base, blocks, tr.channel.bank, LAGS_CHIPS)
-            # a suspect's own prompt is tracked without its twin: on the raw samples, the rounding is all there
-            amplitudes = y[:, LAGS_AT_ZERO] if tr.suspect_chips is not None else prompts / blocks[:, 1]
-            return tr, y, amplitudes, noise_power(power, blocks), blocks[len(blocks) // 2]
+            return tr, y, prompts / blocks[:, 1], noise_power(power, blocks), blocks[len(blocks) // 2]
         if self.front_end.done:
             tracks = [tr for tr in tracks if tr.suspect_chips is not None]
         else:   # the strongest only: a spoofer 6 dB weaker brings a quarter of the SNR for the same cost (101 lags)
@@ -745,9 +749,8 @@ class CancellerStage:
         for seen in run_each(measure, tracks):
             if seen is not None:
                 tr, y, amplitudes, noise, block = seen
-                self.front_end.add(tr.prn, y, amplitudes, noise, block,   # a suspect measured as one path
-                                   tr.legit_offset_chips if tr._joint() and tr.suspect_chips is None else None,
-                                   tr.suspect_chips)
+                self.front_end.add(tr.prn, y, amplitudes, noise, block,
+                                   tr.legit_offset_chips if tr._joint() else None, tr.suspect_chips)
         for prn, twin in self.front_end.fit_when_ready().items():
             if prn in self.tracks:
                 self.tracks[prn].seat_twin(twin)
@@ -772,11 +775,14 @@ class Canceller:
     def prns(self) -> set[int]:
         return {p for s in self.stages for p in s.tracks}
 
-    def cancel(self, peak: Peak, peak_sample: int, stage: int = 0,
-               legit_code_phase_chips: float | None = None, removal: bool = False) -> AdversaryTrack | None:
+    def cancel(self, peak: Peak, peak_sample: int, stage: int = 0, legit_code_phase_chips: float | None = None,
+               removal: bool = False, defer_twin: bool = False) -> AdversaryTrack | None:
         """Start cancelling a peak at the given stage (0 = the first pass); None past the iteration bound.
         legit_code_phase_chips: where the same PRN's legitimate peak is, at the same instant, when known.
-        removal: one stage past the bound, for what is left of a PRN given up (its remaining signal taken out)."""
+        removal: one stage past the bound, for what is left of a PRN given up (its remaining signal taken out).
+        defer_twin: a suspected twin (AdversaryTrack.suspect_chips) is not followed until the meter has judged it:
+        under a spoofer far stronger than any satellite the rounding's second path is as strong as the spoofer, and
+        a joint track on it splits the spoofer in two (the shape then measured on halves, its cancellation gone)."""
         if stage >= self.cfg.max_stages + (1 if removal else 0):
             return None
         while len(self.stages) <= stage:   # a new stage takes the previous one's output from its next sample on
@@ -786,7 +792,7 @@ class Canceller:
         offset = None
         if legit_code_phase_chips is not None:
             offset = chips_offset(legit_code_phase_chips, peak.code_phase_chips)
-        return self.stages[stage].add(peak, peak_sample, offset)
+        return self.stages[stage].add(peak, peak_sample, offset, defer_twin)
 
     def drop(self, prn: int) -> None:
         """Stop cancelling a PRN in every stage (what was cancelled is found to be the legitimate signal)."""

@@ -539,7 +539,8 @@ class SpoofGuard:
                                    "doppler_hz": round(peak.doppler_hz, 1)})
             if self.d["mode"] == "full":
                 self._start_cancelling(prn, t_s, Choice(peak, None, False, f"received at {cn0_dbhz} dB-Hz against the "
-                                                        "thermal floor: stronger than any satellite's signal"))
+                                                        "thermal floor: stronger than any satellite's signal"),
+                                       implausible=True)
 
     def beat_alarm(self, beats: dict[int, float], t_s: float) -> None:
         """Two carriers under the receiver's tracked peaks (beat): the attack is known, those PRNs are not resolved,
@@ -806,7 +807,9 @@ class SpoofGuard:
         """The absolute sample where the latest look's code phases hold (None before the first look)."""
         return None if self._looked is None else self._looked[1]
 
-    def _start_cancelling(self, prn: int, t_s: float, choice: Choice | None) -> None:
+    def _start_cancelling(self, prn: int, t_s: float, choice: Choice | None, implausible: bool = False) -> None:
+        """implausible: the attacker's peak received stronger than any satellite's (power.py), where a front end's
+        rounding of its chips looks like a second path to the two-path fit (Canceller.cancel's defer_twin)."""
         if choice is None:
             return
         if sum(len(s.tracks) for s in self.canceller.stages) >= self.d["max_tracks"]:
@@ -826,7 +829,7 @@ class SpoofGuard:
             hidden = self._hidden_twin(x, peak)
             legit = legit if hidden is None else hidden
         stage = self._stages(prn)
-        if self.canceller.cancel(peak, peak_sample, stage, legit) is None:
+        if self.canceller.cancel(peak, peak_sample, stage, legit, defer_twin=implausible) is None:
             self.gave_up[prn] = f"still spoofed after {stage} SIC iterations"
             self._emit("cancellation_refused", t_s, prn=prn, reason=self.gave_up[prn])
             return
