@@ -17,9 +17,8 @@ and the spoofer may sit a little off its replica (its twin pulls the tracking lo
 chips (GPS-SDR-SIM's own rendering) are kept unless the shape explains the correlations far better than they do.
 
 On a shape the meter also places each spoofer's twin (placed_twin), from the power its replica leaves at each lag: a
-strong spoofer's rounded chips look like two paths a quarter chip apart to the canceller's two-path fit on ideal
-chips' model, and such a suspected twin is followed jointly (as on ideal chips, where it is a twin) until the meter
-has told it from the rounding; it is then dismissed or kept.
+spoofer stronger than any satellite has rounded chips that look like two paths a quarter chip apart to the canceller's
+two-path fit on ideal chips' model, and such a suspected twin waits for the meter to tell it from the rounding.
 """
 
 import functools
