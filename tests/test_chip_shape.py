@@ -7,11 +7,11 @@ from scipy.signal import butter, sosfreqz
 
 from semperfi.defense.canceller import (Canceller, CancellerConfig, code_overlap, code_overlap_reference, refine_peak,
                                         replicas_reference, subtract_replicas)
-from semperfi.defense.chip_shape import (LAGS_CHIPS, RECTANGULAR, TAPS_CHIPS, ChipShape, ChipShapeMeter, _ShapedModel,
-                                         overlap_matrix, placed_twin, shaped_bank)
+from semperfi.defense.chip_shape import (LAG_ZERO, LAGS_CHIPS, RECTANGULAR, TAPS_CHIPS, ChipShape, ChipShapeMeter,
+                                         _ShapedModel, overlap_matrix, placed_twin, shaped_bank)
 from semperfi.defense.twopath import two_path_test
-from semperfi.gps import ca_code
 from semperfi.defense.twopath_track import (bank_lags, correlator_bank, correlator_bank_reference, fit_two_paths)
+from semperfi.gps import ca_code
 from semperfi.receiver.acquisition import DopplerGrid, acquire
 from semperfi.receiver.correlator import code_bank
 from signals import behind_front_end
@@ -108,10 +108,16 @@ def cancelled_db(x, z, measure: bool, fs: float = FS, if_hz: float = 0.0) -> tup
         caf = acquire(x[:int(0.01 * fs)], fs, [prn], DopplerGrid(max_hz=6000, step_hz=333), if_hz=if_hz,
                       coherent_ms=2, noncoherent=5)[prn]
         c.cancel(refine_peak(x[:int(0.01 * fs)], fs, if_hz, caf.best), 0)
+    return left_db(c, x, z, fs), c
+
+
+def left_db(c: Canceller, x: np.ndarray, z: np.ndarray, fs: float) -> float:
+    """x through the canceller in 50 ms chunks: the spoofers' power over what is left of them (the cleaned samples
+    less z, the recording without them), from 1 s on."""
     step = int(0.05 * fs)
     y = np.concatenate([c.push(x[i:i + step]) for i in range(0, x.size, step)] + [c.flush()])
     steady = slice(int(1.0 * fs), x.size - int(0.1 * fs))
-    return float(10 * np.log10(np.mean(np.abs((x - z)[steady]) ** 2) / np.mean(np.abs((y - z)[steady]) ** 2))), c
+    return float(10 * np.log10(np.mean(np.abs((x - z)[steady]) ** 2) / np.mean(np.abs((y - z)[steady]) ** 2)))
 
 
 def test_spoofers_behind_a_front_end_are_cancelled_through_its_measured_chips():
@@ -188,8 +194,7 @@ def test_a_twin_is_placed_from_what_the_spoofers_replica_leaves_whatever_its_pha
     prn, periods, n = 8, 400, 2600
     block = np.array([0.0, n, 0.37, 1.023e6 / 2.6e6, 0.0, 0.0])
     overlap, _ = overlap_matrix(prn, block)
-    zero = int(np.argmin(np.abs(LAGS_CHIPS)))
-    gains = np.asarray(ROUNDED.gains) / float(overlap[zero] @ np.asarray(ROUNDED.gains))
+    gains = np.asarray(ROUNDED.gains) / float(overlap[LAG_ZERO] @ np.asarray(ROUNDED.gains))
     model = _ShapedModel()
     code = ca_code(prn).astype(np.float64)
     pos = 0.37 + np.arange(n) * 1.023e6 / 2.6e6
@@ -204,7 +209,7 @@ def test_a_twin_is_placed_from_what_the_spoofers_replica_leaves_whatever_its_pha
         noise = (rng.standard_normal((periods, n)) + 1j * rng.standard_normal((periods, n))) / np.sqrt(2)
         y += noise @ replicas.T / n
         meter = ChipShapeMeter()
-        meter.add(prn, y, y[:, zero].copy(), 1.0 / n, block, None, suspect_chips=0.25)
+        meter.add(prn, y, y[:, LAG_ZERO].copy(), 1.0 / n, block, None, suspect_chips=0.25)
         placed = placed_twin(prn, meter._seen[prn], gains, model)
         if offset is None:
             assert placed is None
@@ -239,11 +244,7 @@ def test_a_strong_spoofers_rounded_chips_are_no_twin():
             assert track.suspect_chips is not None and track.legit_offset_chips is None
             if trusting:   # as before the shape could tell: a twin throughout
                 track.legit_offset_chips, track.suspect_chips = track.suspect_chips, None
-        step = int(0.05 * fs)
-        y = np.concatenate([c.push(x[i:i + step]) for i in range(0, x.size, step)] + [c.flush()])
-        steady = slice(int(1.0 * fs), x.size - int(0.1 * fs))
-        return float(10 * np.log10(np.mean(np.abs((x - z)[steady]) ** 2)
-                                   / np.mean(np.abs((y - z)[steady]) ** 2))), c
+        return left_db(c, x, z, fs), c
 
     judged_db, judged = cancelled(trusting=False)
     trusted_db, _ = cancelled(trusting=True)

@@ -375,7 +375,8 @@ class AdversaryTrack:
         if not self.defer_twin or (self.legit_offset_chips is not None and suspect is None):
             return
         if twin is not None and np.isnan(twin[1]):   # a deferred suspect goes where the two-path fit placed it
-            self.legit_offset_chips = twin[0] if self.legit_offset_chips is None else self.legit_offset_chips
+            if self.legit_offset_chips is None:
+                self.legit_offset_chips = twin[0]
             return
         self.legit_offset_chips = None if twin is None else twin[0]
         if not self._joint():

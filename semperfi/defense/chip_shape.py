@@ -36,6 +36,7 @@ TAP_REACH_CHIPS = 1.0
 TAPS_CHIPS = TAP_STEP_CHIPS * np.arange(-round(TAP_REACH_CHIPS / TAP_STEP_CHIPS),
                                         round(TAP_REACH_CHIPS / TAP_STEP_CHIPS) + 1)
 LAGS_CHIPS = np.round(np.arange(-2.5, 2.5 + 1e-9, 0.05), 10)   # where a spoofer's correlation is measured
+LAG_ZERO = int(np.argmin(np.abs(LAGS_CHIPS)))                    # the replica itself
 TWIN_NEAR_CHIPS = 0.6         # a twin closer than this is told from the shape by the canceller's own fit (JOINT)
 TWIN_REACH_CHIPS = 3.0        # a twin further than this barely reaches the lags: its gain is not told from noise
 SPOOFER_DRIFT_CHIPS = 0.15    # how far a spoofer may sit from its replica in the fit
@@ -223,7 +224,7 @@ def overlap_matrix(prn: int, block: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     code = ca_code(prn).astype(np.float32)
     rect = code[np.floor(pos[None, :] + LAGS_CHIPS[:, None]).astype(np.int64) % CA_CODE_LENGTH_CHIPS]
     b = knot_values(prn, pos).astype(np.float32)
-    at_zero = rect[np.argmin(np.abs(LAGS_CHIPS))]
+    at_zero = rect[LAG_ZERO]
     return (rect @ b.T).astype(np.float64) / n, (rect @ at_zero).astype(np.float64) / n
 
 
@@ -305,11 +306,10 @@ class ChipShapeMeter:
                 judged = {prn: placed_twin(prn, v, self._gains, self._model) for prn, v in items.items()
                           if _snr_db(v) >= JUDGED_SNR_DB}
         for prn, v in list(self._seen.items()):
-            if prn in judged:
-                pass
-            elif self.shape.rectangular or (v.periods >= MEASURED_MAX_PERIODS and _snr_db(v) < JUDGED_SNR_DB):
+            weak = _snr_db(v) < JUDGED_SNR_DB
+            if prn not in judged and (self.shape.rectangular or (weak and v.periods >= MEASURED_MAX_PERIODS)):
                 judged[prn] = (float(v.suspect_chips), float("nan"))
-            elif _snr_db(v) >= JUDGED_SNR_DB:
+            elif prn not in judged and not weak:
                 judged[prn] = placed_twin(prn, v, self._gains, self._model)
             if prn in judged:
                 del self._seen[prn]
@@ -424,7 +424,7 @@ def fit_gains(items: list, model, twins: dict[int, tuple[float, float]] | None =
         for prn, v in items:
             where[prn] = _best_place(prn, v, gains, model, twins[prn])
             twins[prn] = _best_twin(prn, v, gains, model, guesses.get(prn), where[prn])
-    at_zero = np.mean([model.columns(v)[np.argmin(np.abs(LAGS_CHIPS)), :] for _, v in items], axis=0)
+    at_zero = np.mean([model.columns(v)[LAG_ZERO, :] for _, v in items], axis=0)
     return gains / float(at_zero @ gains), left, twins
 
 
@@ -458,11 +458,10 @@ def placed_twin(prn: int, v: _Seen, gains: np.ndarray, model) -> tuple[float, fl
     left = (v.next_yy - m * v.next_ay + m * m * v.next_aa) / v.next_aa
     side = np.arange(nearest, TWIN_REACH_CHIPS + 1e-9, TWIN_STEP_CHIPS)
     response = model.twin_response(prn, gains)
-    at_zero = int(np.argmin(np.abs(LAGS_CHIPS)))
     best, found = 0.0, None
     for d in np.concatenate([-side[::-1], side]) + place:
         t = response(d)
-        u2 = (t - t[at_zero] * m) ** 2
+        u2 = (t - t[LAG_ZERO] * m) ** 2
         weight = float(u2 @ u2)
         if weight <= 0:
             continue
