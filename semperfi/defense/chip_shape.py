@@ -59,6 +59,11 @@ RIDGE = 1e-4                  # a little weight on the smallest response: the kn
 # weight (flat from 1e-3 to 1e-2), -31 dB fitted on the samples themselves
 SMOOTH = 3e-3
 FIT_ROUNDS = 4
+# a spoofer whose known twin (the canceller's joint one, or a suspect) lies closer than this measures the shape only
+# when no other does: the twin shares its rounded peak, and the twin's gain and place trade against the knots (a twin
+# 0.3 chip off bent the shape until the canceller's joint fit put it 0.06 chip further, its range 6 m off; the
+# shape fitted on the true correlation puts it where it is)
+SHAPE_APART_CHIPS = 1.0
 OUTLIER_FACTOR = 5.0          # a spoofer its own shaped fit leaves this many times the usual is left out of the shape
 # On a shape, each spoofer's twin is placed on it (placed_twin) where it lies TWIN_MIN_DB under the spoofer or less: the
 # shape's own error lies 25-31 dB down; the noise of one spoofer's sums, JUDGED_SNR_DB strong, left 17.7 dB at most
@@ -331,6 +336,7 @@ class ChipShapeMeter:
         alone = {prn: fit_gains([(prn, v)], _ShapedModel(), twins)[1] for prn, v in items}
         usual = OUTLIER_FACTOR * max(float(np.median(list(alone.values()))), LAGS_CHIPS.size)
         items = [(prn, v) for prn, v in items if alone[prn] <= usual]
+        items = [(prn, v) for prn, v in items if not _twin_within(v, SHAPE_APART_CHIPS)] or items
         rectangular_left = sum(rectangular[prn][1] for prn, _ in items)
         gains, shaped_left, _ = fit_gains(items, _ShapedModel(), twins)
         self.distance_db = rectangular_distance_db(gains)
@@ -340,6 +346,11 @@ class ChipShapeMeter:
             self.shape = ChipShape(tuple(float(g) for g in gains))
             return _ShapedModel(), gains
         return _RectangularModel(), np.ones(1)
+
+
+def _twin_within(v: _Seen, chips: float) -> bool:
+    """Whether a spoofer's known twin (followed jointly, or suspected) lies within `chips` of it."""
+    return any(t is not None and abs(t) < chips for t in (v.twin_chips, v.suspect_chips))
 
 
 def _twin_event(twin: tuple[float, float] | None) -> list | None:
