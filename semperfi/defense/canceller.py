@@ -278,14 +278,7 @@ LEAKING_SHARE = 0.01
 # chip off their replicas, twins 1-2 chips away)
 SHAPED_REACH_CHIPS = TAP_REACH_CHIPS
 BACKFILL_COHERENT_WITHIN_CHIPS_S = 0.5   # the DLL's code rate and the carrier's, apart by less: the carrier's
-TWIN_GAIN = 0.5                   # fraction of each buffer's measured twin offset error applied (settling)
-# Once settled, the twin's offset is carried as an estimate with its variance: each buffer's fit weighs in by its own
-# (twopath_track.separation_variance, what 200 seeded buffers scatter it by within 25 %), and the offset's drift
-# beyond the carrier's prediction adds TWIN_DRIFT_CHIPS2_S a second. Followed with a fixed gain of TWIN_GAIN, a twin
-# 0.38 chip under a +6 dB spoofer wandered 0.29-0.49 chip (GPS-SDR-SIM behind 1 MHz, static, 500 m): the fit's
-# errors there are the model's, changing with the two carriers' phase, and a receiver behind the filter took them
-TWIN_DRIFT_CHIPS2_S = 0.003 ** 2
-TWIN_SETTLED_VAR_CHIPS2 = 0.03 ** 2   # the offset's variance when the track settles
+TWIN_GAIN = 0.5                   # fraction of each buffer's measured twin offset error applied
 # A legitimate signal within BIASED_WITHIN_CHIPS of its spoofer keeps, after cancellation, the spoofer's residual
 # within BIASED_RESIDUAL_DB of itself when the spoofer is BIASED_TWIN_DB stronger (the residual some
 # ASSUMED_ATTENUATION_DB down), and the closer the twin the worse the spoofer's own estimate: a multipath at under a
@@ -344,8 +337,6 @@ class AdversaryTrack:
                                        # they differ in Doppler
         self._legit_est: np.ndarray | None = None   # its amplitude per code period of the last buffer
         self._twin_lag = 0.0           # and where it was, from the spoofer's replica
-        self._offset_var_chips2 = TWIN_SETTLED_VAR_CHIPS2   # legit_offset_chips' variance, once settled
-        self._bank: tuple[np.ndarray, np.ndarray] = (np.empty((0, 0)), np.empty(0))   # the last fit's (y, lags)
         self._ref_start = 0j           # _ref before this buffer's periods (the refit smooths them again)
         self._lam = 1.0 / cfg.smoothing_ms
         self._acc_signal = self._acc_residual = self._acc_noise = 0.0
@@ -436,14 +427,9 @@ class AdversaryTrack:
         paths, prompt = self._two_paths(work, base_sample, blocks, add=est)
         if paths is None:
             return None
-        self._offset_var_chips2 += TWIN_DRIFT_CHIPS2_S * len(blocks) * CA_CODE_PERIOD_S
-        gain = self._offset_var_chips2 / (self._offset_var_chips2 + paths.separation_var_chips2)
-        self.legit_offset_chips += gain * (paths.separation_chips - self.legit_offset_chips)
-        self._offset_var_chips2 *= 1.0 - gain
-        if not self._crossing():   # both amplitudes again: the spoofer on its replica, the twin where it is carried
-            paths = paths_at(self.prn, *self._bank, 0.0, float(self.legit_offset_chips), self.shape)
         self._legit_est = self._legit_amplitudes(paths.twin_amplitudes)
         self._twin_lag = paths.twin_offset_chips
+        self.legit_offset_chips += TWIN_GAIN * (paths.separation_chips - self.legit_offset_chips)
         # the spoofer's prompt less the twin's share of it: the residual at the replica, the twin subtracted
         beta = prompt - self._legit_est * code_overlap(blocks, self.channel.bank, paths.twin_offset_chips,
                                                        self.subtract_bank)
@@ -472,7 +458,6 @@ class AdversaryTrack:
         y, power = correlator_bank(x, base_sample, blocks, self.channel.bank, lags, add, self.cfg.real_samples,
                                    self.subtract_bank)
         prompt = y[:, -1]
-        self._bank = (y[:, :-1], lags[:-1])
         if crossing:
             return self._split_by_carrier(prompt), prompt
         return fit_two_paths(self.prn, y[:, :-1], lags[:-1], self.legit_offset_chips,

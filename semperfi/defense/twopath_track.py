@@ -14,7 +14,7 @@ A grid search and a finer one around its best keep the cost independent of the n
 is one pass over the samples with every lag.
 """
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
@@ -158,7 +158,6 @@ class TwoPaths:
     twin_offset_chips: float         # v: its legitimate twin, from the same replica
     spoofer_amplitudes: np.ndarray   # a_b per code period (complex, in the replica's carrier frame)
     twin_amplitudes: np.ndarray      # l_b per code period
-    separation_var_chips2: float = np.inf   # the fitted separation's variance (its likelihood's curvature)
 
     @property
     def separation_chips(self) -> float:
@@ -202,7 +201,7 @@ def fit_two_paths(prn: int, y: np.ndarray, lags: np.ndarray, twin_guess_chips: f
     # two triangles span more of it, the twin pushed away from the spoofer (GPS-SDR-SIM, a 44 dB-Hz twin half a
     # chip from a +6 dB spoofer: 0.02-0.03 chip too far, its amplitude 3-5 % low, the spoofer's replica keeping 5 %
     # of the twin's leakage)
-    s_re = _signal_products(prn, yy, lags, noise_power)
+    s_re = np.real(yy.T @ yy.conj()) - len(yy) * noise_power * code_correlation(prn, lags[:, None] - lags[None, :])
     side = 1.0 if twin_guess_chips >= 0 else -1.0
     us = np.arange(-SPOOFER_SPAN_CHIPS, SPOOFER_SPAN_CHIPS + 1e-9, COARSE_CHIPS)
     vs = twin_guess_chips + np.arange(-TWIN_SPAN_CHIPS, TWIN_SPAN_CHIPS + 1e-9, COARSE_CHIPS)
@@ -211,39 +210,7 @@ def fit_two_paths(prn: int, y: np.ndarray, lags: np.ndarray, twin_guess_chips: f
         return None                                     # no pair on the twin's side: never across the spoofer
     fine = np.arange(-COARSE_CHIPS, COARSE_CHIPS + 1e-9, FINE_CHIPS)
     u, v, _ = _best(prn, u + fine, v + fine, lags, s_re, side, shape)
-    paths = paths_at(prn, y, lags, u, v, shape)
-    return replace(paths, separation_var_chips2=separation_variance(prn, u, v, lags, s_re, side, shape, noise_power))
-
-
-def _signal_products(prn: int, yy: np.ndarray, lags: np.ndarray, noise_power: float) -> np.ndarray:
-    """Re(S), S = sum_b y_b y_b^H over the periods, less the white noise's share (correlated between the lags as
-    the code is with itself)."""
-    return np.real(yy.T @ yy.conj()) - len(yy) * noise_power * code_correlation(prn, lags[:, None] - lags[None, :])
-
-
-CURVATURE_STEP_CHIPS = 0.01
-
-
-def separation_variance(prn: int, u: float, v: float, lags: np.ndarray, s_re: np.ndarray, side: float,
-                        shape: ChipShape, noise_power: float) -> float:
-    """The variance of the fitted separation v - u (chips^2), from the curvature of the energy the two paths
-    explain around (u, v): the Fisher information is -H / (2 noise_power), H the energy's Hessian (inf without a
-    noise power, or where the energy has no peak to read)."""
-    if not noise_power > 0:
-        return np.inf
-    h = CURVATURE_STEP_CHIPS
-    steps = np.array([-h, 0.0, h])
-    e = _explained(prn, u + steps, v + steps, lags, s_re, side, shape)   # e[i, j] at (u + steps[i], v + steps[j])
-    if not np.isfinite(e).all():
-        return np.inf
-    huu = (e[2, 1] - 2 * e[1, 1] + e[0, 1]) / h ** 2
-    hvv = (e[1, 2] - 2 * e[1, 1] + e[1, 0]) / h ** 2
-    huv = (e[2, 2] - e[2, 0] - e[0, 2] + e[0, 0]) / (4 * h ** 2)
-    info = -np.array([[huu, huv], [huv, hvv]]) / (2 * noise_power)
-    if np.linalg.det(info) <= 0 or info[0, 0] <= 0:
-        return np.inf
-    cov = np.linalg.inv(info)
-    return float(cov[0, 0] + cov[1, 1] - 2 * cov[0, 1])
+    return paths_at(prn, y, lags, u, v, shape)
 
 
 def paths_at(prn: int, y: np.ndarray, lags: np.ndarray, u: float, v: float,
