@@ -3,12 +3,13 @@ subtracts, and the cancellation of band-limited spoofers that rectangular replic
 
 import numpy as np
 import pytest
-from scipy.signal import butter, sosfreqz
+from scipy.signal import butter, group_delay, sosfreqz
 
 from semperfi.defense.canceller import (Canceller, CancellerConfig, code_overlap, code_overlap_reference, refine_peak,
                                         replicas_reference, subtract_replicas)
 from semperfi.defense.chip_shape import (LAG_ZERO, LAGS_CHIPS, RECTANGULAR, TAPS_CHIPS, ChipShape, ChipShapeMeter,
-                                         _ShapedModel, overlap_matrix, placed_twin, shaped_bank)
+                                         _ShapedModel, fit_gains, knot_values, overlap_matrix, placed_twin,
+                                         shaped_bank)
 from semperfi.defense.twopath import delay_profile, two_path_test
 from semperfi.defense.twopath_track import (bank_lags, correlator_bank, correlator_bank_reference, fit_two_paths)
 from semperfi.gps import CA_CHIP_RATE_HZ, L1_HZ, SPEED_OF_LIGHT_M_S, ca_code
@@ -266,14 +267,12 @@ def test_the_fitted_chips_are_as_close_to_the_filtered_ones_as_the_knots_fitted_
     sample) by -32.1 dB. The replica's correlations hardly see the knots' alternating patterns: without the
     curvature weight (SMOOTH) the fit missed them by -22.3 dB (all three measured on this seeded scene), so the
     bound between the two fails a fit without it."""
-    from semperfi.defense.chip_shape import fit_gains, knot_values
     fs, prn, cp, doppler = 2.6e6, 8, 400.0, -2100.0
     amplitude = float(np.sqrt(10 ** 4.5 / fs) * np.sqrt(2))
     # rendered 16x faster: at 4x the renderer's own chip edges, on its sample grid, are a residue no knots hold
     x, z = behind_front_end(fs, 1e6, 0.5, [], [(prn, cp, doppler, 1.9)], amplitude, 6.0, seed=4, up=16)
     spoofer = (x - z).astype(np.complex128)
     # the replica where a loop would sit: the filter's group delay at 0 Hz (5th-order Butterworth, 1 MHz), in chips
-    from scipy.signal import group_delay
     _, delay_samples = group_delay(butter(5, 1e6, fs=16 * fs), w=[1.0], fs=16 * fs)
     delay_chips = float(delay_samples[0]) / (16 * fs) * CA_CHIP_RATE_HZ
     step = CA_CHIP_RATE_HZ * (1 + doppler / L1_HZ) / fs
@@ -341,11 +340,10 @@ def test_a_close_twin_behind_a_front_end_keeps_its_range_when_the_shape_is_measu
     x, z = behind_front_end(fs, 1e6, 4.0, legit, spoofers, amplitude, 6.0)
     c = Canceller(fs, 0.0, CancellerConfig())
     look = x[:int(0.01 * fs)]
-    for (prn, *_), (_, legit_chips, *_) in zip(spoofers, legit):
+    for (prn, spoofer_chips, *_), (_, legit_chips, *_) in zip(spoofers, legit):
         caf = acquire(look, fs, [prn], DopplerGrid(max_hz=6000, step_hz=333), coherent_ms=2, noncoherent=5)[prn]
         peak = refine_peak(look, fs, 0.0, caf.best)
-        offset = legit_chips - dict((p, cp) for p, cp, *_ in spoofers)[prn]
-        c.cancel(peak, 0, 0, legit_code_phase_chips=(peak.code_phase_chips + offset) % 1023)
+        c.cancel(peak, 0, 0, legit_code_phase_chips=(peak.code_phase_chips + legit_chips - spoofer_chips) % 1023)
     step = int(0.05 * fs)
     y = np.concatenate([c.push(x[i:i + step]) for i in range(0, x.size, step)] + [c.flush()])
     track = c.stages[0].tracks[8]
