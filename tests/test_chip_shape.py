@@ -277,19 +277,14 @@ def test_the_fitted_chips_are_as_close_to_the_filtered_ones_as_the_knots_fitted_
     delay_chips = float(delay_samples[0]) / (16 * fs) * CA_CHIP_RATE_HZ
     step = CA_CHIP_RATE_HZ * (1 + doppler / L1_HZ) / fs
     k = int(round(fs * 1e-3))
-    code = ca_code(prn).astype(np.float64)
     first0 = int(0.1 * fs)
-    ys, block0 = [], None
-    for b in range(300):
-        first = first0 + b * k
-        phase = (cp + first * step - delay_chips) % 1023
-        wiped = x[first:first + k] * np.exp(-2j * np.pi * doppler * (first + np.arange(k)) / fs)
-        pos = phase + np.arange(k) * step
-        ys.append([np.sum(wiped * code[np.floor(pos + lag).astype(np.int64) % 1023]) / k for lag in LAGS_CHIPS])
-        block0 = np.array([first, k, phase, step, 0.0, 0.0]) if block0 is None else block0
-    y = np.array(ys)
+    firsts = first0 + k * np.arange(300)
+    # 300 periods as tracking would describe them: first sample, samples, code phase, chips and cycles per sample
+    blocks = np.column_stack([firsts, np.full(firsts.size, k), (cp + firsts * step - delay_chips) % 1023,
+                              np.full(firsts.size, step), doppler * firsts / fs, np.full(firsts.size, doppler / fs)])
+    y, _ = correlator_bank_reference(x, 0, blocks, prn, LAGS_CHIPS)
     meter = ChipShapeMeter()
-    meter.add(prn, y, y[:, LAG_ZERO], float(np.mean(np.abs(x) ** 2)) / k, block0, None)
+    meter.add(prn, y, y[:, LAG_ZERO], float(np.mean(np.abs(x) ** 2)) / k, blocks[0], None)
     gains, _, _ = fit_gains([(prn, meter._seen[prn])], _ShapedModel(), {prn: (0.0, 0.0)})
     # both against the noise-free spoofer, each at its best place and scale
     n = int(0.2 * fs)
