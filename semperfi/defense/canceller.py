@@ -18,7 +18,7 @@ from ..receiver import (Channel, CodeBank, DopplerGrid, LoopConfig, NEXT_SAMPLE,
                         initial_state, lane_buffer, replica, run_each, sub_block_samples)
 from .chip_shape import (LAGS_CHIPS, RECTANGULAR, TAP_REACH_CHIPS, TWIN_NEAR_CHIPS, ChipShape, ChipShapeMeter,
                          shaped_bank)
-from .twopath_track import TwoPaths, bank_lags, correlator_bank, fit_two_paths, paths_at
+from .twopath_track import TwoPaths, bank_lags, correlator_bank, fit_two_paths, paths_at, signal_products
 
 MEASURE_EVERY = 8                 # code periods per attenuation measurement
 MEASURED_WITHIN_DB = 6.0          # the spoofers that measure the front end's chips: this close to the strongest
@@ -279,6 +279,13 @@ LEAKING_SHARE = 0.01
 SHAPED_REACH_CHIPS = TAP_REACH_CHIPS
 BACKFILL_COHERENT_WITHIN_CHIPS_S = 0.5   # the DLL's code rate and the carrier's, apart by less: the carrier's
 TWIN_GAIN = 0.5                   # fraction of each buffer's measured twin offset error applied
+# Once settled, a joint track fits the offsets on its bank's products (twopath_track.signal_products) carried over
+# the last TWIN_MEMORY_S or so, each buffer's weighed down by exp(-its length / TWIN_MEMORY_S): the two paths' offsets
+# change slowly, and one 50 ms buffer scatters the twin's by +-0.03 chip (a 45 dB-Hz twin 0.8 chip from a +15 dB
+# spoofer): its leakage into the spoofer's prompt, taken out of the spoofer's amplitude, with it
+TWIN_MEMORY_S = 1.0
+TWIN_SMEAR_CHIPS = 0.001          # or, for a twin that moves, as long as it moves this far
+LAG_KEPT_CHIPS = 0.5              # the carried products' lags are kept while they reach this far beyond the twin
 # A legitimate signal within BIASED_WITHIN_CHIPS of its spoofer keeps, after cancellation, the spoofer's residual
 # within BIASED_RESIDUAL_DB of itself when the spoofer is BIASED_TWIN_DB stronger (the residual some
 # ASSUMED_ATTENUATION_DB down), and the closer the twin the worse the spoofer's own estimate: a multipath at under a
@@ -337,6 +344,7 @@ class AdversaryTrack:
                                        # they differ in Doppler
         self._legit_est: np.ndarray | None = None   # its amplitude per code period of the last buffer
         self._twin_lag = 0.0           # and where it was, from the spoofer's replica
+        self._products: tuple[np.ndarray, np.ndarray] | None = None   # (lags, products) carried (TWIN_MEMORY_S)
         self._ref_start = 0j           # _ref before this buffer's periods (the refit smooths them again)
         self._lam = 1.0 / cfg.smoothing_ms
         self._acc_signal = self._acc_residual = self._acc_noise = 0.0
@@ -424,7 +432,7 @@ class AdversaryTrack:
         blocks, est = planned
         if not self._joint():
             return None
-        paths, prompt = self._two_paths(work, base_sample, blocks, add=est)
+        paths, prompt = self._two_paths(work, base_sample, blocks, add=est, carry=True)
         if paths is None:
             return None
         self._legit_est = self._legit_amplitudes(paths.twin_amplitudes)
@@ -449,19 +457,38 @@ class AdversaryTrack:
     def _crossing(self) -> bool:
         return self.settled and abs(self.legit_offset_chips) < CROSSING_CHIPS and abs(self._turn_hz) >= CROSSING_MIN_HZ
 
-    def _two_paths(self, x: np.ndarray, base_sample: int, blocks: np.ndarray,
-                   add: np.ndarray | None = None) -> tuple[TwoPaths | None, np.ndarray]:
+    def _two_paths(self, x: np.ndarray, base_sample: int, blocks: np.ndarray, add: np.ndarray | None = None,
+                   carry: bool = False) -> tuple[TwoPaths | None, np.ndarray]:
         """Both paths fitted on this buffer, and each period's correlation with the replica itself. add: this
-        track's replica amplitudes, added back to x as it is read (x less every spoofer, this one's put back)."""
+        track's replica amplitudes, added back to x as it is read (x less every spoofer, this one's put back);
+        carry: the offsets fitted on the products carried from earlier buffers too (TWIN_MEMORY_S)."""
         crossing = self._crossing()
-        lags = np.zeros(1) if crossing else np.append(bank_lags(self.legit_offset_chips), 0.0)
+        lags = np.zeros(1) if crossing else np.append(self._bank_lags(carry), 0.0)
         y, power = correlator_bank(x, base_sample, blocks, self.channel.bank, lags, add, self.cfg.real_samples,
                                    self.subtract_bank)
         prompt = y[:, -1]
         if crossing:
+            self._products = None
             return self._split_by_carrier(prompt), prompt
-        return fit_two_paths(self.prn, y[:, :-1], lags[:-1], self.legit_offset_chips,
-                             noise_power(power, blocks), self.shape), prompt
+        y, lags, noise = y[:, :-1], lags[:-1], noise_power(power, blocks)
+        products = None
+        if carry:
+            products = signal_products(self.prn, y, lags, noise)
+            if self._products is not None and np.array_equal(self._products[0], lags):
+                # a twin moving from its spoofer (a flying receiver) is remembered as long as it stays in place
+                memory_s = min(TWIN_MEMORY_S, TWIN_SMEAR_CHIPS / max(abs(self._offset_rate_chips_s), 1e-9))
+                products += np.exp(-len(blocks) * CA_CODE_PERIOD_S / memory_s) * self._products[1]
+            self._products = (lags, products)
+        return fit_two_paths(self.prn, y, lags, self.legit_offset_chips, noise, self.shape, products), prompt
+
+    def _bank_lags(self, carry: bool) -> np.ndarray:
+        """The bank's lags: the carried products' while they still reach LAG_KEPT_CHIPS beyond the twin."""
+        offset = self.legit_offset_chips
+        if carry and self._products is not None:
+            lags = self._products[0]
+            if lags[0] + LAG_KEPT_CHIPS <= min(0.0, offset) and max(0.0, offset) <= lags[-1] - LAG_KEPT_CHIPS:
+                return lags
+        return bank_lags(offset)
 
     def _twin_where_carried(self, x: np.ndarray, base_sample: int, blocks: np.ndarray) -> TwoPaths | None:
         """A settled track's twin for its first tracking pass, at the offset carried from the last buffer's fit, the

@@ -33,11 +33,11 @@ MIN_SEPARATION_CHIPS = 0.1  # closer than this the two columns of A are nearly t
 
 
 def bank_lags(twin_offset_chips: float) -> np.ndarray:
-    """The lags covering the spoofer (0) and its twin, with a margin either side."""
-    lo = min(0.0, twin_offset_chips) - LAG_MARGIN_CHIPS
-    hi = max(0.0, twin_offset_chips) + LAG_MARGIN_CHIPS
-    n = int(np.ceil((hi - lo) / LAG_STEP_CHIPS)) + 1
-    return lo + LAG_STEP_CHIPS * np.arange(n)
+    """The lags covering the spoofer (0) and its twin, with a margin either side, on whole steps of LAG_STEP_CHIPS
+    (a twin that moves a little keeps the same lags, and its buffers' products add up)."""
+    lo = np.floor((min(0.0, twin_offset_chips) - LAG_MARGIN_CHIPS) / LAG_STEP_CHIPS)
+    hi = np.ceil((max(0.0, twin_offset_chips) + LAG_MARGIN_CHIPS) / LAG_STEP_CHIPS)
+    return np.round(LAG_STEP_CHIPS * np.arange(lo, hi + 1), 10)
 
 
 @njit(cache=True, nogil=True, fastmath=True)
@@ -187,21 +187,27 @@ def _best(prn, us, vs, lags, s_re, side, shape):
     return float(us[i]), float(vs[j]), bool(np.isfinite(e[i, j]))
 
 
+def signal_products(prn: int, y: np.ndarray, lags: np.ndarray, noise_power: float = 0.0) -> np.ndarray:
+    """Re(S), S = sum_b y_b y_b^H over a bank's finite periods, less the white noise's share: the noise in
+    neighbouring lags is correlated as the code is with itself, and left in S it favours the pair whose two
+    triangles span more of it, the twin pushed away from the spoofer (GPS-SDR-SIM, a 44 dB-Hz twin half a chip from
+    a +6 dB spoofer: 0.02-0.03 chip too far, its amplitude 3-5 % low, the spoofer's replica keeping 5 % of the
+    twin's leakage)."""
+    yy = y[np.isfinite(y).all(axis=1)]
+    return np.real(yy.T @ yy.conj()) - len(yy) * noise_power * code_correlation(prn, lags[:, None] - lags[None, :])
+
+
 def fit_two_paths(prn: int, y: np.ndarray, lags: np.ndarray, twin_guess_chips: float,
-                  noise_power: float = 0.0, shape: ChipShape = RECTANGULAR) -> TwoPaths | None:
+                  noise_power: float = 0.0, shape: ChipShape = RECTANGULAR,
+                  products: np.ndarray | None = None) -> TwoPaths | None:
     """The ML offsets of the spoofer (near 0) and its twin (near twin_guess_chips, on the same side of the spoofer)
     from a bank's correlations y (periods, lags); None without a finite period or when the twin's side cannot hold
     a fit. noise_power: the variance of one period's correlation with white noise (sample power / samples); shape:
-    the chips' as received (chip_shape)."""
-    ok = np.isfinite(y).all(axis=1)
-    if not ok.any():
+    the chips' as received (chip_shape); products: the signal_products the offsets are fitted on, when not this
+    buffer's alone (earlier buffers' on the same lags added: the amplitudes are still this buffer's)."""
+    if not np.isfinite(y).all(axis=1).any():
         return None
-    yy = y[ok]
-    # the noise in neighbouring lags is correlated as the code is with itself: left in S, it favours the pair whose
-    # two triangles span more of it, the twin pushed away from the spoofer (GPS-SDR-SIM, a 44 dB-Hz twin half a
-    # chip from a +6 dB spoofer: 0.02-0.03 chip too far, its amplitude 3-5 % low, the spoofer's replica keeping 5 %
-    # of the twin's leakage)
-    s_re = np.real(yy.T @ yy.conj()) - len(yy) * noise_power * code_correlation(prn, lags[:, None] - lags[None, :])
+    s_re = signal_products(prn, y, lags, noise_power) if products is None else products
     side = 1.0 if twin_guess_chips >= 0 else -1.0
     us = np.arange(-SPOOFER_SPAN_CHIPS, SPOOFER_SPAN_CHIPS + 1e-9, COARSE_CHIPS)
     vs = twin_guess_chips + np.arange(-TWIN_SPAN_CHIPS, TWIN_SPAN_CHIPS + 1e-9, COARSE_CHIPS)
