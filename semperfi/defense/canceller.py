@@ -279,11 +279,12 @@ LEAKING_SHARE = 0.01
 SHAPED_REACH_CHIPS = TAP_REACH_CHIPS
 BACKFILL_COHERENT_WITHIN_CHIPS_S = 0.5   # the DLL's code rate and the carrier's, apart by less: the carrier's
 TWIN_GAIN = 0.5                   # fraction of each buffer's measured twin offset error applied
-# Once settled on chips found ideal, a joint track fits the offsets on its bank's products (signal_products)
-# carried over the last TWIN_MEMORY_S or so, each buffer's weighed down by exp(-its length / TWIN_MEMORY_S): the two
-# paths' offsets change slowly, and one 50 ms buffer scatters the twin's by 0.009 chip RMS (a 45 dB-Hz twin 0.8 chip from a +15 dB
-# spoofer, ideal chips), and its leakage into the spoofer's prompt, taken out of the spoofer's amplitude, with it:
-# followed buffer by buffer the twin sat 0.012 chip too close beside a second spoofer, 0.001 chip on the last second
+# Once settled on chips found ideal, a joint track fits the offsets on its bank's products (signal_products) carried
+# over the last TWIN_MEMORY_S or so, each buffer's weighed down by exp(-its length / TWIN_MEMORY_S): the two paths'
+# offsets change slowly, and one 50 ms buffer scatters the twin's by 0.009 chip RMS (a 45 dB-Hz twin 0.8 chip from a
+# +15 dB spoofer, ideal chips), and its leakage into the spoofer's prompt, taken out of the spoofer's amplitude, with
+# it: followed buffer by buffer the twin sat 0.012 chip too close beside a second spoofer, 0.001 chip on the last
+# second
 TWIN_MEMORY_S = 1.0
 TWIN_SMEAR_CHIPS = 0.001          # or, for a twin that moves, as long as it moves this far
 LAG_KEPT_CHIPS = 0.5              # the carried products' lags are kept while they reach this far beyond the twin
