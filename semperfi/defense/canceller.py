@@ -465,6 +465,7 @@ class AdversaryTrack:
         track's replica amplitudes, added back to x as it is read (x less every spoofer, this one's put back);
         carry: the offsets fitted on the products carried from earlier buffers too (TWIN_MEMORY_S)."""
         crossing = self._crossing()
+        carry = carry and self._chips_known_ideal()
         lags = np.zeros(1) if crossing else np.append(self._bank_lags(carry), 0.0)
         y, power = correlator_bank(x, base_sample, blocks, self.channel.bank, lags, add, self.cfg.real_samples,
                                    self.subtract_bank)
@@ -474,7 +475,7 @@ class AdversaryTrack:
             return self._split_by_carrier(prompt), prompt
         y, lags, noise = y[:, :-1], lags[:-1], noise_power(power, blocks)
         products = None
-        if carry and self._chips_known_ideal():
+        if carry:
             products = signal_products(self.prn, y, lags, noise)
             if self._products is not None and np.array_equal(self._products[0], lags):
                 # a twin moving from its spoofer (a flying receiver) is remembered as long as it stays in place
@@ -492,13 +493,14 @@ class AdversaryTrack:
         return meter is None or (meter.done and meter.shape.rectangular)
 
     def _bank_lags(self, carry: bool) -> np.ndarray:
-        """The bank's lags: the carried products' while they still reach LAG_KEPT_CHIPS beyond the twin."""
+        """The bank's lags: the carried products' while they still reach LAG_KEPT_CHIPS beyond the twin (carry:
+        on whole steps, else as the twin's offset puts them)."""
         offset = self.legit_offset_chips
         if carry and self._products is not None:
             lags = self._products[0]
             if lags[0] + LAG_KEPT_CHIPS <= min(0.0, offset) and max(0.0, offset) <= lags[-1] - LAG_KEPT_CHIPS:
                 return lags
-        return bank_lags(offset)
+        return bank_lags(offset, whole_steps=carry)
 
     def _twin_where_carried(self, x: np.ndarray, base_sample: int, blocks: np.ndarray) -> TwoPaths | None:
         """A settled track's twin for its first tracking pass, at the offset carried from the last buffer's fit, the

@@ -32,12 +32,16 @@ FINE_CHIPS = 0.002
 MIN_SEPARATION_CHIPS = 0.1  # closer than this the two columns of A are nearly the same: no fit
 
 
-def bank_lags(twin_offset_chips: float) -> np.ndarray:
-    """The lags covering the spoofer (0) and its twin, with a margin either side, on whole steps of LAG_STEP_CHIPS
-    (a twin that moves a little keeps the same lags, and its buffers' products add up)."""
-    lo = np.floor((min(0.0, twin_offset_chips) - LAG_MARGIN_CHIPS) / LAG_STEP_CHIPS)
-    hi = np.ceil((max(0.0, twin_offset_chips) + LAG_MARGIN_CHIPS) / LAG_STEP_CHIPS)
-    return np.round(LAG_STEP_CHIPS * np.arange(lo, hi + 1), 10)
+def bank_lags(twin_offset_chips: float, whole_steps: bool = False) -> np.ndarray:
+    """The lags covering the spoofer (0) and its twin, with a margin either side; whole_steps: on whole steps of
+    LAG_STEP_CHIPS (a twin that moves a little keeps the same lags, and its buffers' products add up)."""
+    lo = min(0.0, twin_offset_chips) - LAG_MARGIN_CHIPS
+    hi = max(0.0, twin_offset_chips) + LAG_MARGIN_CHIPS
+    if whole_steps:
+        lo, hi = LAG_STEP_CHIPS * np.floor(lo / LAG_STEP_CHIPS), LAG_STEP_CHIPS * np.ceil(hi / LAG_STEP_CHIPS)
+        return np.round(lo + LAG_STEP_CHIPS * np.arange(round((hi - lo) / LAG_STEP_CHIPS) + 1), 10)
+    n = int(np.ceil((hi - lo) / LAG_STEP_CHIPS)) + 1
+    return lo + LAG_STEP_CHIPS * np.arange(n)
 
 
 @njit(cache=True, nogil=True, fastmath=True)
