@@ -118,3 +118,31 @@ def test_a_seamless_takeover_from_another_generator_is_recovered_by_continuity_w
     assert len(decided) >= 5 and all(v["adversarial"] for v in decided), decided
     assert r["called_good_but_wrong"] == 0, r
     assert r["last_state"] == "recovered" and r["last_mean_m"] < 2.0, r
+
+
+def test_a_scene_written_as_int8_or_as_real_samples_at_an_if_holds_the_same_satellites(tmp_path, brdc_path):
+    """The mixer's other formats (Case.item_type) behind a front end: int8 IQ at the AGC's level, and real int16 at an
+    IF of a quarter of twice the rate. Acquired on each, the satellites are where the int16 IQ recording has them,
+    in code phase and Doppler, and as far above the noise."""
+    found = {}
+    for item_type, fs_hz in (("ishort", 2.6e6), ("ibyte", 2.6e6), ("short", 5.2e6)):
+        case = Case(PLACES["boston"], 0.0, 0.0, duration_s=1.0, attacker=False, front_end_hz=1e6, item_type=item_type,
+                    fs_hz=fs_hz)
+        reader = open_iq(prepare(case, brdc_path, tmp_path))
+        assert (reader.fmt.name, reader.fs_hz, reader.if_hz) == (item_type, fs_hz, case.if_hz)
+        x = reader.read(0, int(0.02 * fs_hz)).astype(np.complex128)
+        if item_type == "ibyte":   # the AGC's level, 4 sigma under the clip
+            rms = np.sqrt(np.mean(np.concatenate([x.real, x.imag]) ** 2))
+            assert abs(rms - 32.0) < 2.0 and np.mean(np.abs(x.real) >= 127) < 1e-4
+        cafs = acquire(x, fs_hz, range(1, 33), DopplerGrid(0.0, 6000.0, 100.0), reader.if_hz, coherent_ms=5,
+                       noncoherent=2)
+        found[item_type] = {prn: c.best for prn, c in cafs.items() if c.best is not None and c.best.metric > 40}
+    reference = found["ishort"]
+    assert len(reference) >= 6
+    for item_type in ("ibyte", "short"):
+        assert set(found[item_type]) == set(reference), item_type
+        for prn, peak in found[item_type].items():
+            ref = reference[prn]
+            assert abs(peak.code_phase_chips - ref.code_phase_chips) < 0.05, (item_type, prn)
+            assert abs(peak.doppler_hz - ref.doppler_hz) < 25.0, (item_type, prn)
+            assert abs(10 * np.log10(peak.metric / ref.metric)) < 1.0, (item_type, prn, peak.metric, ref.metric)

@@ -112,13 +112,14 @@ def fingerprint(case, nav_path: str | Path, work: Path, gnss_sdr: bool = True, f
 
     from ..defense import load_config
     from ..defense import clean_file
-    from ..iq import ISHORT
+    from ..iq import format_by_name
     from ..receiver import NoSignal, run_file
     from .gnss_sdr import GNSS_SDR_EXE, run_gnss_sdr
     from .xgen import RECEIVER_SETTINGS, prepare, score
     data, reference = prepare(case, nav_path, work), prepare(case.clean, nav_path, work)
     cleaned = work / f"{case.tag}-clean.bin"
-    summary = clean_file(data, cleaned, ISHORT, case.fs_hz, 0.0, load_config(None, ['defense.mode="full"']))
+    summary = clean_file(data, cleaned, format_by_name(case.item_type), case.fs_hz, case.if_hz,
+                         load_config(None, ['defense.mode="full"']))
     week, sow = case.truth.start_gps
     t0_s = week * 604800.0 + sow + from_s
     out = {"case": case.tag, "cleaned": str(cleaned), "cancelled": list(summary.cancelled), "gave_up": summary.gave_up,
@@ -143,7 +144,8 @@ def fingerprint(case, nav_path: str | Path, work: Path, gnss_sdr: bool = True, f
             for i in range(gnss_sdr_runs):
                 run_dir = work / (f"{case.tag}-plugin-{name}-gnss-sdr" + (f"-{i}" if i else ""))
                 shutil.rmtree(run_dir, ignore_errors=True)
-                fixes = run_gnss_sdr(path, case.fs_hz, "ishort", 0.0, run_dir, 1800.0, trop_model="OFF", rinex=True)
+                fixes = run_gnss_sdr(path, case.fs_hz, case.item_type, case.if_hz, run_dir, 1800.0, trop_model="OFF",
+                                     rinex=True)
                 runs.append(_gnss_sdr_score(fixes, case))
                 if i == 0:
                     found = sorted(p for p in run_dir.iterdir()

@@ -30,7 +30,7 @@ from scipy.special import i0
 
 from ..errors import BadInput
 from ..flight import Leg, ManeuverLimits, plan_trajectory, write_track_csv
-from ..iq import build_sigmf_meta, sidecar_path, write_sigmf_meta
+from ..iq import build_sigmf_meta, encode_samples, format_by_name, sidecar_path, write_sigmf_meta
 from ..receiver import TRUSTED_STATES
 from ..sim import gaussian
 from .flightpath import MOTION_DT_S, ins_track, write_motion_csv
@@ -55,6 +55,13 @@ MIX_BLOCK_S = 1.0
 # down either way: noise-like, it raises no receiver's floor measurably. 16x is four times the disk (10 GB a scene).
 FRONT_END_UP = 4
 FRONT_END_ORDER = 5
+# A recording's samples (Case.item_type): int16 IQ, as gps-sdr-sim writes; int8 IQ at an AGC's level (the first
+# block's RMS, the spoofer's power in it, at INT8_RMS per component: 4 sigma below the clip); or real int16 at an IF,
+# a quarter of the rate (behind a front end only: the band-limited mix moved up to IF_SHARE of the rate, its real
+# part kept -- both images keep the complex recording's C/N0, at twice its rate)
+RECORDING_ITEM_TYPES = ("ishort", "ibyte", "short")
+INT8_RMS = 32.0
+IF_SHARE = 0.25
 F_L1_HZ = 1575.42e6
 DELAY_SUB_BLOCK_S = 1e-3     # the time push's delay is held per sub-block (25 ns/s: 25 ps);
                              # its carrier turns per sample
@@ -103,6 +110,16 @@ class Case:
     takeover_m_s: float = 0.0        # rather than a claimed trajectory
     generator: str = GPS_SDR_SIM     # what renders the scenes: gps-sdr-sim, or ours (semperfi.eval.ours)
     front_end_hz: float = 0.0        # not 0: a front end's low-pass cutoff (one-sided), FRONT_END_UP
+    item_type: str = "ishort"        # the recording's samples (RECORDING_ITEM_TYPES, GNSS-SDR's names)
+
+    @property
+    def real(self) -> bool:
+        """Real samples at an IF (fs_hz is then their rate, twice the complex band's)."""
+        return not format_by_name(self.item_type).is_complex
+
+    @property
+    def if_hz(self) -> float:
+        return IF_SHARE * self.fs_hz if self.real else 0.0
 
     @property
     def _when(self) -> str:
@@ -117,7 +134,8 @@ class Case:
     def _length(self) -> str:
         mark = "" if self.generator == GPS_SDR_SIM else f"-{self.generator}"
         front = f"-fe{self.front_end_hz / 1e6:g}M" if self.front_end_hz else ""
-        return f"{self.fs_hz / 1e6:g}M{front}-{self.duration_s:g}s-s{self.seed}{mark}"
+        samples = "" if self.item_type == "ishort" else f"-{self.item_type}"
+        return f"{self.fs_hz / 1e6:g}M{front}{samples}-{self.duration_s:g}s-s{self.seed}{mark}"
 
     @property
     def scene(self) -> str:
@@ -352,15 +370,22 @@ def push_delay(case: Case):
 
 
 def rendered(case: Case) -> Case:
-    """The case its scenes are rendered at: FRONT_END_UP times faster behind a front end."""
-    return replace(case, fs_hz=case.fs_hz * FRONT_END_UP, front_end_hz=0.0) if case.front_end_hz else case
+    """The case its scenes are rendered at (complex): FRONT_END_UP times the complex band's rate behind a front end
+    (a real recording's complex band: half its rate)."""
+    if case.real and not case.front_end_hz:
+        raise XgenError(f"real samples ({case.item_type}) at an IF are made behind a front end: give its cutoff")
+    if case.item_type not in RECORDING_ITEM_TYPES:
+        raise XgenError(f"recordings are written as {', '.join(RECORDING_ITEM_TYPES)}, not {case.item_type!r}")
+    band_hz = case.fs_hz / 2 if case.real else case.fs_hz
+    return replace(case, fs_hz=band_hz * FRONT_END_UP, front_end_hz=0.0, item_type="ishort") \
+        if case.front_end_hz else case
 
 
 def mix(legit: Path, spoof: Path | None, out: Path, case: Case) -> Path:
-    """legit + spoofer x 10^(P/20) (from spoof_start_s) + white Gaussian noise at the case's C/N0, int16 IQ. With a
-    time push (case.push_ns_per_s) the spoofer is the legitimate scene delayed by push_delay (spoof is ignored).
-    Behind a front end (case.front_end_hz) the scenes are at rendered(case)'s rate and the sum is filtered and
-    decimated to the case's."""
+    """legit + spoofer x 10^(P/20) (from spoof_start_s) + white Gaussian noise at the case's C/N0, in the case's
+    item_type. With a time push (case.push_ns_per_s) the spoofer is the legitimate scene delayed by push_delay (spoof
+    is ignored). Behind a front end (case.front_end_hz) the scenes are at rendered(case)'s rate and the sum is
+    filtered (moved to the IF for real samples) and decimated to the case's."""
     fast = rendered(case)
     sigma = noise_sigma(fast.fs_hz, case.cn0_dbhz)
     gain = 10 ** (case.advantage_db / 20.0)
@@ -370,11 +395,12 @@ def mix(legit: Path, spoof: Path | None, out: Path, case: Case) -> Path:
     b = None if pushed or spoof is None else scene_samples(spoof, fast)
     read, delay = (scene_reader(a), push_delay(fast)) if pushed else (None, None)
     up = int(round(fast.fs_hz / case.fs_hz))
-    front_end = FrontEnd(case.front_end_hz, fast.fs_hz, up) if case.front_end_hz else None
+    front_end = FrontEnd(case.front_end_hz, fast.fs_hz, up, case.if_hz) if case.front_end_hz else None
+    fmt = format_by_name(case.item_type)
     block = 2 * up * int(round(case.fs_hz * MIX_BLOCK_S))
     start = 2 * int(round(case.spoof_start_s * fast.fs_hz))
     # single precision: int16 scenes, even +20 dB over, keep a thousandth of a unit before the rounding
-    gain32, sigma32, scale32 = np.float32(gain), np.float32(sigma), np.float32(OUTPUT_SCALE)
+    gain32, sigma32, scale32 = np.float32(gain), np.float32(sigma), None
     with open(out, "wb") as f:
         for i in range(0, a.size, block):
             x = a[i:i + block].astype(np.float32)
@@ -392,27 +418,36 @@ def mix(legit: Path, spoof: Path | None, out: Path, case: Case) -> Path:
             x += noise
             if front_end is not None:
                 x = front_end.filter(x)
-            x *= scale32                              # in place: np.round(x * s) takes 20 times as long
-            np.rint(x, out=x)
-            np.clip(x, -32767, 32767, out=x)
-            f.write(x.astype("<i2").tobytes())
-    meta = build_sigmf_meta(datatype="ci16_le", sample_rate_hz=case.fs_hz, dataset=out.name,
+            if scale32 is None:   # int8: the AGC settles on the first block
+                scale32 = OUTPUT_SCALE if fmt.item_dtype.itemsize > 1 else \
+                    INT8_RMS / math.sqrt(float(np.mean(np.square(x, dtype=np.float64))))
+            items, _ = encode_samples(x.view(np.complex64), fmt, scale32)
+            f.write(items.tobytes())
+    meta = build_sigmf_meta(datatype=fmt.sigmf_datatype, sample_rate_hz=case.fs_hz, if_hz=case.if_hz,
+                            dataset=out.name,
                             description=f"gps-sdr-sim legitimate + spoofer scenes mixed by semperfi.eval.xgen: {case}")
     write_sigmf_meta(sidecar_path(out), meta)
     return out
 
 
 class FrontEnd:
-    """A front end's low-pass and decimation over a stream of interleaved IQ blocks (the filter's state carried)."""
+    """A front end's low-pass and decimation over a stream of interleaved IQ blocks (the filter's state carried),
+    the band moved up to if_hz before the decimation (a real recording's I is then the signal at that IF)."""
 
-    def __init__(self, cutoff_hz: float, fs_hz: float, down: int):
+    def __init__(self, cutoff_hz: float, fs_hz: float, down: int, if_hz: float = 0.0):
         self.sos = butter(FRONT_END_ORDER, cutoff_hz, fs=fs_hz, output="sos")
         self.state = np.zeros((self.sos.shape[0], 2), dtype=np.complex128)
         self.down = down
+        self.if_cycles_per_sample = if_hz / fs_hz
+        self.n = 0                    # fast samples filtered so far (the IF's phase)
 
     def filter(self, iq: np.ndarray) -> np.ndarray:
         """Interleaved float IQ in (a whole number of output samples), interleaved float32 IQ out, decimated."""
         z, self.state = sosfilt(self.sos, iq[0::2] + 1j * iq[1::2], zi=self.state)
+        if self.if_cycles_per_sample:
+            k = self.n + np.arange(z.size, dtype=np.int64)
+            z *= np.exp(2j * np.pi * ((k * self.if_cycles_per_sample) % 1.0))
+        self.n += z.size
         z = z[::self.down]
         return np.column_stack([z.real, z.imag]).ravel().astype(np.float32)
 
@@ -538,14 +573,14 @@ def plugin_case(case: Case, nav_path: str | Path, work: Path, timeout_s: float =
     (troposphere off, as in the scenes); GNSS-SDR's horizontal error over its last 10 s and at most."""
     from ..defense import load_config
     from ..defense import clean_file
-    from ..iq import ISHORT
     from .gnss_sdr import horizontal_errors_m, run_gnss_sdr
     data = prepare(case, nav_path, work)
     cleaned = work / f"{case.tag}-clean.bin"
-    summary = clean_file(data, cleaned, ISHORT, case.fs_hz, 0.0, load_config(None, ['defense.mode="full"']))
+    summary = clean_file(data, cleaned, format_by_name(case.item_type), case.fs_hz, case.if_hz,
+                         load_config(None, ['defense.mode="full"']))
     try:
-        fixes = run_gnss_sdr(cleaned, case.fs_hz, "ishort", 0.0, work / f"{case.tag}-gnss-sdr", timeout_s,
-                             trop_model="OFF")
+        fixes = run_gnss_sdr(cleaned, case.fs_hz, case.item_type, case.if_hz, work / f"{case.tag}-gnss-sdr",
+                             timeout_s, trop_model="OFF")
     finally:
         cleaned.unlink(missing_ok=True)
         sidecar_path(cleaned).unlink(missing_ok=True)
