@@ -603,19 +603,19 @@ class AdversaryTrack:
             self.hold_from = None
         return blocks, est
 
+    def subtract(self, x: np.ndarray, base_sample: int, blocks: np.ndarray, amplitudes: np.ndarray) -> None:
+        """x less this track's replicas (prepare()'s, or refit()'s change to them) over the part of them inside x."""
+        subtract_replicas(x, base_sample, blocks, amplitudes, self.subtract_bank, self.cfg.real_samples)
+
     def measure(self, work: np.ndarray, base_sample: int, planned: tuple) -> None:
         """What the subtraction of prepare()'s replicas left (after it)."""
         if self._joint() and self._legit_est is None:
             return   # the twin not fitted in this buffer: it would count as a residual
         self._measure(work, base_sample, *planned, self._legit_est)
 
-    def _backfill(self, work: np.ndarray, base_sample: int, settled_block: np.ndarray, settled_est: complex) -> None:
-        """Cancel the held samples, from where the track began (the partial code period before its first epoch
-        too) up to the first settled block, with the settled replica run backwards. Its amplitude is smoothed
-        back in time turning by the carrier's error at the settling: a PLL just settled is a few Hz off, and a
-        smoothing that does not turn lags it (GPS-SDR-SIM, +10 dB, every PRN spoofed from the first sample, a
-        2 Hz error: the spoofer 8-10 dB down over the held 0.3 s, 20-30 dB with the turn, as after it; an
-        unmodified receiver behind the plug-in filter acquired the spoofers' leftovers there and lost them)."""
+    def _held_blocks(self, base_sample: int, settled_block: np.ndarray) -> np.ndarray | None:
+        """The code periods of the held samples, newest first, from the first settled block back to where the
+        track began (the partial one before its first epoch too); None when there are none."""
         first, _, cp, step, ph, pstep = settled_block
         # the code's rate from the carrier's where the two agree as a satellite's do: a DLL just settled is still a
         # tenth of a chip a second off (0.03 chip at the held samples' start, the spoofer 12 dB down there); a
@@ -635,9 +635,18 @@ class AdversaryTrack:
             n = np.ceil(e + period) - s0
             blocks.append((s0, n, (s0 - e) * step, step, ph + (s0 - first) * pstep, pstep))
             k += 1
-        if not blocks:
+        return np.array(blocks) if blocks else None
+
+    def _backfill(self, work: np.ndarray, base_sample: int, settled_block: np.ndarray, settled_est: complex) -> None:
+        """Cancel the held samples, from where the track began (the partial code period before its first epoch
+        too) up to the first settled block, with the settled replica run backwards. Its amplitude is smoothed
+        back in time turning by the carrier's error at the settling: a PLL just settled is a few Hz off, and a
+        smoothing that does not turn lags it (GPS-SDR-SIM, +10 dB, every PRN spoofed from the first sample, a
+        2 Hz error: the spoofer 8-10 dB down over the held 0.3 s, 20-30 dB with the turn, as after it; an
+        unmodified receiver behind the plug-in filter acquired the spoofers' leftovers there and lost them)."""
+        blocks = self._held_blocks(base_sample, settled_block)
+        if blocks is None:
             return
-        blocks = np.array(blocks)
         beta, power = residuals(work, base_sample, blocks, self.channel.bank)
         ok = np.isfinite(power)
         bit = 1.0 if (settled_est * np.conj(self._ref)).real >= 0 else -1.0
@@ -674,6 +683,66 @@ class AdversaryTrack:
             self._acc_n = 0
 
 
+# What is left of a PRN given up (Canceller.cancel's removal: its legitimate twin merged with what the stages left of
+# its spoofer) is taken out by projection, not by one more replica: each code period, the samples' components on the
+# PRN's code at every REMOVAL_STEP_CHIPS within REMOVAL_REACH_CHIPS of the remainder are fitted together and
+# subtracted, whatever signals lie there and however a front end rounds their chips. One replica on the merged pair
+# left a signal to track (GPS-SDR-SIM behind 1 MHz, flying, 500 m, +15 dB: PRN 7 taken out at 4.4 s, our receiver
+# behind the filter acquired what was left at 16.1 s, 37 dB-Hz, its range 27.8 m off).
+REMOVAL_STEP_CHIPS = 0.1
+REMOVAL_REACH_CHIPS = 2.0
+REMOVAL_RCOND = 1e-6     # the lags' Gram inverted on its directions this far above its largest: sampled codes at
+                         # lags closer than a sample are nearly alike
+
+
+class RemovalTrack(AdversaryTrack):
+    """A PRN's remainder followed by a lone track and taken out by projection on the code around it (the lags)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        reach = int(round(REMOVAL_REACH_CHIPS / REMOVAL_STEP_CHIPS))
+        self.lags = REMOVAL_STEP_CHIPS * np.arange(-reach, reach + 1)
+        self._zero = reach                  # the lag of the replica itself
+        self._fit: np.ndarray | None = None   # the Gram's pseudo-inverse: the components from the correlations
+        self._prompt: np.ndarray | None = None   # the correlation with the replica itself, per period
+
+    def _components(self, x: np.ndarray, base_sample: int, blocks: np.ndarray) -> np.ndarray:
+        """Per code period, the least-squares amplitudes of the code at each lag (a_b = G^+ y_b)."""
+        y, _ = correlator_bank(x, base_sample, blocks, self.channel.bank, self.lags)
+        if self._fit is None:   # once: over a whole period the Gram hardly depends on where samples fall
+            gram = np.empty((self.lags.size, self.lags.size))
+            one = np.array(blocks[:1], dtype=np.float64)
+            for j, lag in enumerate(self.lags):
+                one[0, 2] = blocks[0, 2] + lag
+                for k in range(j, self.lags.size):
+                    gram[j, k] = gram[k, j] = code_overlap(one, self.channel.bank, self.lags[k] - lag)[0]
+            self._fit = np.linalg.pinv(gram, rcond=REMOVAL_RCOND, hermitian=True)
+        self._prompt = y[:, self._zero]
+        return np.nan_to_num(y) @ self._fit
+
+    def prepare(self, work: np.ndarray, base_sample: int) -> tuple | None:
+        first_ms, prompts, blocks = self._tracked
+        settled = first_ms + np.arange(prompts.size) >= self.cfg.pull_in_ms
+        if not settled.any():
+            return None
+        blocks = blocks[int(np.argmax(settled)):]
+        if not self.settled:   # the held samples too, period by period
+            self.settled = True
+            held = self._held_blocks(base_sample, blocks[0])
+            if held is not None:
+                self.subtract(work, base_sample, held, self._components(work, base_sample, held))
+            self.hold_from = None
+        return blocks, self._components(work, base_sample, blocks)
+
+    def subtract(self, x: np.ndarray, base_sample: int, blocks: np.ndarray, amplitudes: np.ndarray) -> None:
+        for k, lag in enumerate(self.lags):
+            subtract_replicas(x, base_sample, blocks, amplitudes[:, k], self.channel.bank, self.cfg.real_samples,
+                              offset_chips=float(lag))
+
+    def measure(self, work: np.ndarray, base_sample: int, planned: tuple) -> None:
+        self._measure(work, base_sample, planned[0], self._prompt)
+
+
 def _spans(n: int, parts: int) -> list[tuple[int, int]]:
     """[0, n) cut into `parts` consecutive spans (the threads' shares of a buffer)."""
     edges = np.linspace(0, n, max(1, parts) + 1).astype(np.int64)
@@ -700,13 +769,14 @@ class CancellerStage:
         return self.base + self._raw.size
 
     def add(self, peak: Peak, peak_sample: int, legit_offset_chips: float | None = None,
-            defer_twin: bool = False) -> AdversaryTrack:
+            defer_twin: bool = False, removal: bool = False) -> AdversaryTrack:
         # a twin this close was placed by a two-path fit on ideal chips' model (no CAF parts two peaks so close)
         meter = self.front_end
         defer_twin = defer_twin and meter is not None and not (meter.done and meter.shape.rectangular)
         deferred = defer_twin and legit_offset_chips is not None and abs(legit_offset_chips) < TWIN_NEAR_CHIPS
-        track = AdversaryTrack(peak.prn, self.fs_hz, self.if_hz, peak, peak_sample, self.end_sample, self.cfg,
-                               self.index, None if deferred else legit_offset_chips, self.front_end)
+        kind = RemovalTrack if removal else AdversaryTrack
+        track = kind(peak.prn, self.fs_hz, self.if_hz, peak, peak_sample, self.end_sample, self.cfg, self.index,
+                     None if deferred or removal else legit_offset_chips, self.front_end)
         track.defer_twin = defer_twin
         if deferred:
             track.suspect_chips = legit_offset_chips
@@ -743,7 +813,7 @@ class CancellerStage:
             # one thread over the whole buffer
             a, b = part
             for tr, (blocks, est) in planned:
-                subtract_replicas(work[a:b], base + a, blocks, est, tr.subtract_bank, tr.cfg.real_samples)
+                tr.subtract(work[a:b], base + a, blocks, est)
         run_each(subtract, _spans(work.size, cores()))
         # joint tracks look again without the other spoofers (each reads work), then their changes are subtracted
         deltas = run_each(lambda item: item[0].refit(work, base, item[1]), planned)
@@ -752,7 +822,7 @@ class CancellerStage:
             def correct(part: tuple[int, int]) -> None:
                 a, b = part
                 for tr, blocks, delta in again:
-                    subtract_replicas(work[a:b], base + a, blocks, delta, tr.subtract_bank, tr.cfg.real_samples)
+                    tr.subtract(work[a:b], base + a, blocks, delta)
             run_each(correct, _spans(work.size, cores()))
             planned = [(tr, (blocks, est if delta is None else est + delta))
                        for (tr, (blocks, est)), delta in zip(planned, deltas)]
@@ -819,7 +889,8 @@ class Canceller:
                removal: bool = False, defer_twin: bool = False) -> AdversaryTrack | None:
         """Start cancelling a peak at the given stage (0 = the first pass); None past the iteration bound.
         legit_code_phase_chips: where the same PRN's legitimate peak is, at the same instant, when known.
-        removal: one stage past the bound, for what is left of a PRN given up (its remaining signal taken out).
+        removal: one stage past the bound, for what is left of a PRN given up (its remaining signal taken out, by
+        projection: RemovalTrack).
         defer_twin: a suspected twin (AdversaryTrack.suspect_chips) is not followed until the meter has judged it:
         under a spoofer far stronger than any satellite the rounding's second path is as strong as the spoofer, and
         a joint track on it splits the spoofer in two (the shape then measured on halves, its cancellation gone)."""
@@ -832,7 +903,7 @@ class Canceller:
         offset = None
         if legit_code_phase_chips is not None:
             offset = chips_offset(legit_code_phase_chips, peak.code_phase_chips)
-        return self.stages[stage].add(peak, peak_sample, offset, defer_twin)
+        return self.stages[stage].add(peak, peak_sample, offset, defer_twin, removal)
 
     def drop(self, prn: int) -> None:
         """Stop cancelling a PRN in every stage (what was cancelled is found to be the legitimate signal)."""
