@@ -73,3 +73,4 @@ def test_a_removed_prn_leaves_nothing_to_track_behind_a_front_end_and_the_others
     assert _power_db(projected[:z.size], PRN, CP + TWIN_CHIPS, DOPPLER) < 1.0
     other = [_power_db(v[:z.size], *OTHER[:3]) for v in (z, projected)]
     assert abs(other[1] - other[0]) < 0.3, other
+
