@@ -120,3 +120,24 @@ def test_gnss_sdr_is_configured_for_real_samples_at_an_if():
     assert "InputFilter.implementation=Pass_Through" in complex_lines
     with pytest.raises(ValueError, match="need an IF"):
         gnss_sdr_config("/tmp/r.bin", 10.4e6, "short", 0.0)
+
+
+@needs_gnss_sdr
+@pytest.mark.gnss_sdr
+def test_samples_at_a_long_path_are_read_through_a_short_link_and_a_flowgraph_that_never_ran_is_an_error(
+        tmp_path, monkeypatch):
+    """GNSS-SDR cuts a samples path of 194 characters short, cannot open it, and exits with status 0 and no fix (the
+    real-IF plug-in grid's flying 500 m +3 dB cell: 'no fix' that was no run). Its samples are linked into its run's
+    directory under a short name; and should it still not start, that is an error, not a recording without a fix."""
+    from semperfi.eval import gnss_sdr
+    deep = tmp_path / ("a-long-folder-name-" * 6) / ("another-long-folder-name-" * 4)
+    deep.mkdir(parents=True)
+    data = deep / "noise.bin"
+    rng = np.random.default_rng(1)
+    data.write_bytes(np.rint(rng.standard_normal(2 * int(0.5 * FS)) * 100).astype("<i2").tobytes())
+    assert len(str(data)) > 200
+    assert run_gnss_sdr(data, FS, "ishort", 0.0, deep / "run", timeout_s=120) == []
+    assert "SignalSource.filename=samples" in (deep / "run" / gnss_sdr.CONFIG_NAME).read_text().splitlines()
+    monkeypatch.setattr(gnss_sdr, "_short_link", lambda data_file, out_dir: str(data_file))
+    with pytest.raises(RuntimeError, match="Unable to connect flowgraph"):
+        run_gnss_sdr(data, FS, "ishort", 0.0, deep / "run-full-path", timeout_s=120)

@@ -28,6 +28,8 @@ CONFIG_NAME = "gnss-sdr_semperfi.conf"
 LOG_NAME = "gnss-sdr.log"              # GNSS-SDR's stdout + stderr
 OUTPUT_STEM = "gnss_sdr_pvt"           # GNSS-SDR names its KML/GPX/GeoJSON '<PVT.dump_filename>_YYMMDD_HHMMSS.*'
 NMEA_NAME = OUTPUT_STEM + ".nmea"      # PVT.nmea_dump_filename; found again by globbing *.nmea
+SAMPLES_LINK = "samples"               # the samples, linked into the run's directory under a short name
+NOT_STARTED = "Unable to connect flowgraph"   # what GNSS-SDR says when it cannot open its samples, then exits 0
 COMPLEX_ITEM_TYPES = ("ishort", "ibyte", "gr_complex")
 REAL_ITEM_TYPES = ("short",)   # real samples at an IF: the input filter mixes them to complex baseband
 ITEM_TYPES = (*COMPLEX_ITEM_TYPES, *REAL_ITEM_TYPES)
@@ -77,7 +79,8 @@ def gnss_sdr_config(data_file: str | os.PathLike, fs_hz: float, item_type: str, 
                     channels: int = 12, out_dir: str | os.PathLike = ".", trop_model: str = "Saastamoinen",
                     iono_model: str = "Broadcast", output_rate_ms: int = 100, doppler_max_hz: int = 10000,
                     elevation_mask_deg: float = 5.0, rinex: bool = False) -> str:
-    """A complete GNSS-SDR 0.0.17 configuration for GPS L1 C/A from `data_file`.
+    """A complete GNSS-SDR 0.0.17 configuration for GPS L1 C/A from `data_file` (a path made absolute; a bare file
+    name stays as written, in the directory GNSS-SDR runs in, as out_dir).
 
     `item_type` is GNSS-SDR's name of the sample format ('ishort' = interleaved int16 I/Q, 'ibyte' = int8 I/Q,
     'gr_complex' = complex64, 'short' = real int16 at an IF). `if_hz` is where L1 sits in the band (the signal is
@@ -109,7 +112,8 @@ def gnss_sdr_config(data_file: str | os.PathLike, fs_hz: float, item_type: str, 
     doppler_max_hz = int(doppler_max_hz)
     if not 1000 <= doppler_max_hz <= 50000:
         raise ValueError(f"doppler_max_hz must be 1000..50000, got {doppler_max_hz}")
-    data = _conf_value(str(Path(data_file).resolve()), "data file path")
+    data_file = Path(data_file)
+    data = _conf_value(str(data_file if data_file.name == str(data_file) else data_file.resolve()), "data file path")
     out = _conf_value(str(out_dir), "output directory")
 
     if if_hz == 0.0:
@@ -324,9 +328,10 @@ def run_gnss_sdr(data_file: str | os.PathLike, fs_hz: float, item_type: str, if_
             stale.unlink()
     conf_path = out_dir / CONFIG_NAME
     # its outputs relative to the directory it runs in: GNSS-SDR cuts a long output path short (at about 170
-    # characters) and writes its NMEA file into a sibling directory of that shorter name
-    conf_path.write_text(gnss_sdr_config(data_file, fs_hz, item_type, if_hz, out_dir=".", **config_kwargs),
-                         encoding="utf-8")
+    # characters) and writes its NMEA file into a sibling directory of that shorter name; and its samples through a
+    # link there of a short name: a 194-character path to them was cut short too, and it could not open them
+    conf_path.write_text(gnss_sdr_config(_short_link(data_file, out_dir), fs_hz, item_type, if_hz, out_dir=".",
+                                         **config_kwargs), encoding="utf-8")
     log_path = out_dir / LOG_NAME
     cmd = [exe, f"--config_file={conf_path}", "--keyboard=false", f"--log_dir={out_dir}",
            f"--minloglevel={0 if info_log else 1}"]
@@ -342,7 +347,7 @@ def run_gnss_sdr(data_file: str | os.PathLike, fs_hz: float, item_type: str, if_
         except BaseException:   # Ctrl-C: do not leave a receiver running
             _stop(proc)
             raise
-    if rc != 0:
+    if rc != 0 or NOT_STARTED in _log_tail(log_path):   # (it exits with 0 when it cannot start its flowgraph)
         raise RuntimeError(f"gnss-sdr exited with status {rc}; log: {log_path}\n{_log_tail(log_path)}")
     # GNSS-SDR deletes its NMEA file again when it never wrote a fix: no file means no fix.
     fixes: list[Fix] = []
@@ -350,6 +355,18 @@ def run_gnss_sdr(data_file: str | os.PathLike, fs_hz: float, item_type: str, if_
         if nmea.stat().st_mtime >= started_s - 1.0:   # written by this run (other .nmea files are left alone)
             fixes.extend(read_nmea_fixes(nmea))
     return fixes
+
+
+def _short_link(data_file: Path, out_dir: Path) -> str:
+    """The samples as GNSS-SDR opens them from out_dir (its working directory): through SAMPLES_LINK there, or by
+    their full path where no link can be made."""
+    link = out_dir / SAMPLES_LINK
+    try:
+        link.unlink(missing_ok=True)
+        link.symlink_to(data_file)
+    except OSError:
+        return str(data_file)
+    return SAMPLES_LINK
 
 
 def _stop(proc: subprocess.Popen, grace_s: float = 5.0) -> None:
