@@ -1020,6 +1020,55 @@ def test_the_plug_in_filter_judges_a_twin_once_and_never_takes_a_satellite_away_
     assert sorted(guard.gave_up) == [6] and guard.removed == {6}, (guard.gave_up, guard.removed)
 
 
+def test_a_twin_is_taken_out_where_the_strongest_spoofers_track_holds_it_and_again_when_its_removal_ends():
+    """PRN 6 followed twice: stage 0 with a twin that took its spoofer's power (a 'twin' 10 dB over its spoofer,
+    0.3 chip off: no signal there), stage 1 with the twin 0.4 chip from a spoofer 20 dB stronger. The removal goes to
+    the twin stage 1 holds (taken from stage 0's, it went where a later stage had cancelled the spoofer, lost its
+    lock on what was left and ended: GPS-SDR-SIM behind 1 MHz, static, 500 m, +15 dB, PRN 1). A removal that ends
+    is placed again, MAX_REMOVALS times in all."""
+    from semperfi.defense import guard as guard_module
+    from semperfi.defense.canceller import RemovalTrack
+    from semperfi.defense.guard import MAX_REMOVALS, SpoofGuard
+    from semperfi.receiver.acquisition import Peak
+    fs, doppler, prn = 2.6e6, 1200.0, 6
+    guard = SpoofGuard(load_config(None, []), fs, remove_given_up=True)
+    rng = np.random.default_rng(5)
+    t = np.arange(int(0.6 * fs)) / fs
+    x = ca_signal(prn, t, 100.0, doppler, 4.0) + ca_signal(prn, t, 100.4, doppler, 0.4, 1.0)
+    x = (x + np.sqrt(10 ** -4.5 * fs / 2) * (rng.standard_normal(t.size) + 1j * rng.standard_normal(t.size)))
+    guard.canceller.cancel(Peak(prn, 100.0, doppler, 0.0, 51.0), 0, 0, 100.3)
+    guard.canceller.cancel(Peak(prn, 100.0, doppler, 0.0, 51.0), 0, 1, 100.4)
+    step = int(0.1 * fs)
+    for i in range(0, t.size, step):
+        guard.canceller.push(x[i:i + step].astype(np.complex64))
+    swapped, holding = (guard.canceller.stages[k].tracks[prn] for k in (0, 1))
+    for tr, advantage_db in ((swapped, -10.0), (holding, 20.0)):
+        tr.settled, tr._ref = True, 10.0 + 0j
+        tr.attenuation_db.extend([(30.0, False), (30.0, False)])
+        tr._legit_ref = 10.0 * 10 ** (-advantage_db / 20) + 0j
+    sample = int(holding.channel.latest_epoch_sample - fs * 1e-3)
+    guard._cleaned, guard.verified = sample, {prn}
+    guard._clean.clear()
+    events = []
+    guard._emit = lambda event, t_s, **kw: events.append((event, kw))
+    guard._remove_biased_twins(sample, 0.6)
+    assert guard.removed == {prn}, guard.gave_up
+    assert isinstance(guard.canceller.stages[2].tracks[prn], RemovalTrack)
+    twin_chips = (holding.channel.code_phase_at(sample) + holding.legit_offset_chips) % 1023
+    removed_at = next(kw["code_phase_chips"] for e, kw in events if e == "prn_removed")
+    assert abs(removed_at - twin_chips) < 0.01, (removed_at, twin_chips)   # not where stage 0's 'twin' is
+    events.clear()
+    for n in range(MAX_REMOVALS + 1):
+        guard.canceller.stages[2].tracks.pop(prn)   # its removal lost what it followed
+        guard._keep_removed(0.6)
+        assert guard.canceller.removing(prn) == (n + 1 < MAX_REMOVALS), n
+        if n + 1 >= MAX_REMOVALS:
+            break
+    assert [e for e, kw in events] == ["removal_lost"] * (MAX_REMOVALS - 1)
+    assert all(kw["restarted"] for _, kw in events)
+    assert guard_module.MAX_REMOVALS == MAX_REMOVALS
+
+
 def test_a_fix_on_a_channel_just_started_is_not_yet_called_recovered():
     """A range from a channel acquired a moment ago is still settling (its code loop and carrier smoothing start from
     the acquisition's code phase: on ArduCopter SITL the eight channels acquired again at a takeover's verdict gave

@@ -938,6 +938,10 @@ class Canceller:
             offset = chips_offset(legit_code_phase_chips, peak.code_phase_chips)
         return self.stages[stage].add(peak, peak_sample, offset, defer_twin, removal)
 
+    def removing(self, prn: int) -> bool:
+        """Whether a PRN's remainder is being taken out (a RemovalTrack follows it)."""
+        return any(isinstance(st.tracks.get(prn), RemovalTrack) for st in self.stages)
+
     def drop(self, prn: int) -> None:
         """Stop cancelling a PRN in every stage (what was cancelled is found to be the legitimate signal)."""
         for st in self.stages:

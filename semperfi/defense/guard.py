@@ -67,6 +67,7 @@ DEEP_FIT_MIN_CN0_DBHZ = 43.0
 BEAT_STALE_S = 1.0     # a time push's beat unseen on a PRN this long: its separation is no longer known
 COMMON_WAIT_S = 1.0    # a beat on a few PRNs alike, no alarm yet: how long the others have to show it too
 MAX_SWAPS = 2          # a PRN whose cancelled peak is found legitimate this often is given up
+MAX_REMOVALS = 3       # a PRN taken out is taken out again this often at most, each time its removal ends
 ABSENT_MARGIN_S = 1.0  # a full search's absent PRNs stand this long past the next one's due time (then: search again)
 SUSPECT_FOR_S = 10.0   # ranges that disagree, no alarm yet: how long every look stays at the highest sensitivity
 EXAMINE_MAX_PEAKS = 16  # a strong spoofer's Doppler and code sidelobes are local maxima too: room for its twin
@@ -174,6 +175,7 @@ class SpoofGuard:
         self.gave_up: dict[int, str] = {}
         self.remove_given_up = remove_given_up
         self.removed: set[int] = set()                   # PRNs given up and taken out whole (remove_given_up)
+        self._removals: dict[int, int] = {}              # how often each was (taken out again: _keep_removed)
         self._twin_judged: set[int] = set()              # verified PRNs whose twin the plug-in filter has judged
         # PRNs cancelled on power alone (no legitimate peak in sight); those whose cancellation takes everything away
         # are merged (the property)
@@ -259,6 +261,7 @@ class SpoofGuard:
         cleaned = self.canceller.push(chunk)
         self._tell_chip_shape()
         self._forget_lost(self._seen / self.fs_hz)
+        self._keep_removed(self._seen / self.fs_hz)
         self._cleaned += cleaned.size
         self._clean.push(cleaned)
         if self.alarmed_prns:
@@ -939,16 +942,42 @@ class SpoofGuard:
             twin = self.close_twin(prn)
             if twin is None or not biased_twin(*twin):
                 continue
-            for tr, spoofer_chips in self.spoofers_at(prn, sample):
-                if tr.legit_offset_chips is None:
-                    continue
-                self.gave_up[prn] = (f"its legitimate twin lies {abs(twin[1]):.2f} chip under a spoofer {twin[0]:.1f} "
-                                     f"dB stronger: its range would stay biased")
-                self._emit("cancellation_refused", t_s, prn=prn, reason=self.gave_up[prn])
-                chips = float((spoofer_chips + tr.legit_offset_chips) % CA_CODE_LENGTH_CHIPS)
-                remainder = Peak(prn, chips, tr.channel.doppler_at(0), 0.0, 0.0)
-                self._remove(prn, remainder, sample, self._stages(prn), t_s)
-                break
+            remainder = self._at_twin_of(prn, sample)
+            if remainder is None:
+                continue
+            self.gave_up[prn] = (f"its legitimate twin lies {abs(twin[1]):.2f} chip under a spoofer {twin[0]:.1f} "
+                                 f"dB stronger: its range would stay biased")
+            self._emit("cancellation_refused", t_s, prn=prn, reason=self.gave_up[prn])
+            self._remove(prn, remainder, sample, self._stages(prn), t_s)
+
+    def _at_twin_of(self, prn: int, sample: int) -> Peak | None:
+        """Where a PRN's legitimate twin is at an absolute sample, seen from the track that holds it against the
+        strongest spoofer (close_twin's): another of its tracks may hold a twin that is no signal (a track whose
+        'twin' took its spoofer's power, 12 dB over it: GPS-SDR-SIM behind 1 MHz, static, 500 m, +15 dB, PRN 1,
+        whose removal went to the place of a spoofer a later stage had cancelled, lost its lock there and ended)."""
+        tracks = [tr for tr in self._tracks(prn) if tr.twin_advantage_db is not None]
+        if not tracks:
+            return None
+        tr = max(tracks, key=lambda t: t.twin_advantage_db)
+        spoofer_chips = tr.channel.code_phase_at(sample)
+        if spoofer_chips is None:
+            return None
+        return Peak(prn, float((spoofer_chips + tr.legit_offset_chips) % CA_CODE_LENGTH_CHIPS),
+                    tr.channel.doppler_at(0), 0.0, 0.0)
+
+    def _keep_removed(self, t_s: float) -> None:
+        """A PRN taken out whose removal track lost what it followed (and ended) is taken out again, at its twin as
+        the tracks hold it now, up to MAX_REMOVALS times; its output would hold the satellite again otherwise."""
+        for prn in sorted(self.removed):
+            if self.canceller.removing(prn) or self._removals.get(prn, 0) >= MAX_REMOVALS:
+                continue
+            sample = self._cleaned - self._clean.size    # within every stage's history (the cleaned window's)
+            remainder = self._at_twin_of(prn, sample)
+            self._removals[prn] = self._removals.get(prn, 0) + 1
+            placed = remainder is not None and self.canceller.cancel(
+                remainder, sample, self._stages(prn), removal=True) is not None
+            self._emit("removal_lost", t_s, prn=prn, restarted=placed,
+                       code_phase_chips=None if remainder is None else round(remainder.code_phase_chips, 4))
 
     def _remove(self, prn: int, remainder: Peak, sample: int, stage: int, t_s: float) -> None:
         """A PRN given up whose remainder still dominates where its spoofer was: that remainder (the legitimate twin
@@ -957,6 +986,7 @@ class SpoofGuard:
         if self.canceller.cancel(remainder, sample, stage, removal=True) is None:
             return
         self.removed.add(prn)
+        self._removals[prn] = 1
         self._emit("prn_removed", t_s, prn=prn, code_phase_chips=round(remainder.code_phase_chips, 4),
                    reason="given up: what is left of it is cancelled too, the satellite left out of the output")
 
