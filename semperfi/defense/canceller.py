@@ -694,10 +694,9 @@ REMOVAL_REACH_CHIPS = 2.0
 REMOVAL_RCOND = 1e-6     # the lags' Gram inverted on its directions this far above its largest
 # The Gram of the sampled codes at those lags hangs on where the samples fall on the chips: over a whole period,
 # on the block's code phase modulo a sample (the same positions, one sample on). It is held for REMOVAL_PHASES such
-# phases, and the fit made twice, the second time on what the first left (a Gram half a phase off leaves up to -26
-# dB of a signal on one lag; one from another phase, -15 dB: a 50 dB-Hz twin left trackable)
-REMOVAL_PHASES = 32
-REMOVAL_PASSES = 2
+# phases: one half a phase off leaves at most -30 dB of a signal on one lag; one Gram from another period's phase
+# left -15 dB (a 50 dB-Hz twin still trackable), 32 phases -26 dB
+REMOVAL_PHASES = 64
 
 
 class RemovalTrack(AdversaryTrack):
@@ -729,27 +728,11 @@ class RemovalTrack(AdversaryTrack):
         return self._fit
 
     def _components(self, x: np.ndarray, base_sample: int, blocks: np.ndarray) -> np.ndarray:
-        """Per code period, the least-squares amplitudes of the code at each lag (a_b = G_b^+ y_b), fitted
-        REMOVAL_PASSES times, each on what the ones before left (on a copy of x)."""
-        fits = self._fits(blocks[0])
+        """Per code period, the least-squares amplitudes of the code at each lag (a_b = G_b^+ y_b)."""
         phase = np.round(np.mod(blocks[:, 2], blocks[:, 3]) / blocks[:, 3] * REMOVAL_PHASES).astype(np.int64)
-        fit = fits[phase % REMOVAL_PHASES]
-        lo, hi = int(blocks[:, 0].min()), int((blocks[:, 0] + blocks[:, 1]).max())
-        left = None
-        amplitudes = np.zeros((len(blocks), self.lags.size), dtype=np.complex128)
-        for i in range(REMOVAL_PASSES):
-            y, _ = correlator_bank(x if left is None else left, base_sample if left is None else lo, blocks,
-                                   self.channel.bank, self.lags)
-            if i == 0:
-                self._prompt = y[:, self._zero]
-            step = np.einsum("bjk,bk->bj", fit, np.nan_to_num(y))
-            amplitudes += step
-            if i + 1 < REMOVAL_PASSES:
-                if left is None:
-                    left = np.array(x[max(0, lo - base_sample):hi - base_sample], copy=True)
-                    lo = max(lo, base_sample)
-                self.subtract(left, lo, blocks, step)
-        return amplitudes
+        y, _ = correlator_bank(x, base_sample, blocks, self.channel.bank, self.lags)
+        self._prompt = y[:, self._zero]
+        return np.einsum("bjk,bk->bj", self._fits(blocks[0])[phase % REMOVAL_PHASES], np.nan_to_num(y))
 
     def prepare(self, work: np.ndarray, base_sample: int) -> tuple | None:
         first_ms, prompts, blocks = self._tracked
