@@ -585,13 +585,10 @@ class AdversaryTrack:
         Nothing is subtracted while the loops settle; those samples are held back (hold_from) and, once the
         loops have settled, cancelled here with the settled replica extended backwards in time.
         """
-        first_ms, prompts, blocks = self._tracked
-        if prompts.size == 0:
+        i0 = self._first_settled()
+        if i0 is None:
             return None
-        settled = first_ms + np.arange(prompts.size) >= self.cfg.pull_in_ms
-        if not settled.any():
-            return None
-        i0 = int(np.argmax(settled))
+        _, prompts, blocks = self._tracked
         blocks, alphas = blocks[i0:], prompts[i0:] / blocks[i0:, 1]   # least squares: unit-modulus replica
         if not self.settled:
             self._ref = alphas[0]
@@ -606,6 +603,12 @@ class AdversaryTrack:
     def subtract(self, x: np.ndarray, base_sample: int, blocks: np.ndarray, amplitudes: np.ndarray) -> None:
         """x less this track's replicas (prepare()'s, or refit()'s change to them) over the part of them inside x."""
         subtract_replicas(x, base_sample, blocks, amplitudes, self.subtract_bank, self.cfg.real_samples)
+
+    def _first_settled(self) -> int | None:
+        """The first of the periods track() measured that lies past the loops' pull-in (None: none does)."""
+        first_ms, prompts, _ = self._tracked
+        settled = first_ms + np.arange(prompts.size) >= self.cfg.pull_in_ms
+        return int(np.argmax(settled)) if settled.any() else None
 
     def measure(self, work: np.ndarray, base_sample: int, planned: tuple) -> None:
         """What the subtraction of prepare()'s replicas left (after it)."""
@@ -735,11 +738,10 @@ class RemovalTrack(AdversaryTrack):
         return np.einsum("bjk,bk->bj", self._fits(blocks[0])[phase % REMOVAL_PHASES], np.nan_to_num(y))
 
     def prepare(self, work: np.ndarray, base_sample: int) -> tuple | None:
-        first_ms, prompts, blocks = self._tracked
-        settled = first_ms + np.arange(prompts.size) >= self.cfg.pull_in_ms
-        if not settled.any():
+        i0 = self._first_settled()
+        if i0 is None:
             return None
-        blocks = blocks[int(np.argmax(settled)):]
+        blocks = self._tracked[2][i0:]
         if not self.settled:   # the held samples too, period by period
             self.settled = True
             held = self._held_blocks(base_sample, blocks[0])

@@ -400,7 +400,8 @@ def mix(legit: Path, spoof: Path | None, out: Path, case: Case) -> Path:
     block = 2 * up * int(round(case.fs_hz * MIX_BLOCK_S))
     start = 2 * int(round(case.spoof_start_s * fast.fs_hz))
     # single precision: int16 scenes, even +20 dB over, keep a thousandth of a unit before the rounding
-    gain32, sigma32, scale32 = np.float32(gain), np.float32(sigma), None
+    gain32, sigma32 = np.float32(gain), np.float32(sigma)
+    scale32 = OUTPUT_SCALE if fmt.item_dtype.itemsize > 1 else None   # int8: the AGC settles on the first block
     with open(out, "wb") as f:
         for i in range(0, a.size, block):
             x = a[i:i + block].astype(np.float32)
@@ -418,9 +419,8 @@ def mix(legit: Path, spoof: Path | None, out: Path, case: Case) -> Path:
             x += noise
             if front_end is not None:
                 x = front_end.filter(x)
-            if scale32 is None:   # int8: the AGC settles on the first block
-                scale32 = OUTPUT_SCALE if fmt.item_dtype.itemsize > 1 else \
-                    INT8_RMS / math.sqrt(float(np.mean(np.square(x, dtype=np.float64))))
+            if scale32 is None:
+                scale32 = INT8_RMS / math.sqrt(float(np.mean(np.square(x, dtype=np.float64))))
             items, _ = encode_samples(x.view(np.complex64), fmt, scale32)
             f.write(items.tobytes())
     meta = build_sigmf_meta(datatype=fmt.sigmf_datatype, sample_rate_hz=case.fs_hz, if_hz=case.if_hz,
