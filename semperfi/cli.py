@@ -1,6 +1,8 @@
 """The `semperfi` command."""
 
+import _thread
 import sys
+import threading
 import warnings
 
 import click
@@ -93,10 +95,27 @@ class _OneLineGroup(click.Group):
             sys.exit(EXIT_INTERNAL)
 
 
+INTERRUPT_AGAIN_S = 0.05   # a Ctrl-C a finalizer swallowed is raised again this long after (_unraisable)
+
+
+def _unraisable(unraisable) -> None:
+    """sys.unraisablehook: a Ctrl-C that lands in a finalizer (llvmlite's, while numba compiles) is swallowed there
+    and printed as a traceback, and the command ran on until killed (the interrupted-run test, once in the full
+    suite): it is raised again in the main thread, where the command stops as for any Ctrl-C -- from a timer's
+    thread once the hook has returned (raised from within the hook, it is swallowed again). Anything else a
+    finalizer raises is one line."""
+    if unraisable.exc_type is not None and issubclass(unraisable.exc_type, KeyboardInterrupt):
+        threading.Timer(INTERRUPT_AGAIN_S, _thread.interrupt_main).start()
+        return
+    first = (str(unraisable.exc_value).strip().splitlines() or [""])[0]
+    click.echo(f"semperfi: warning: ignored in a finalizer: {unraisable.exc_type.__name__}: {first}", err=True)
+
+
 @click.group(cls=_OneLineGroup)
 @click.version_option(__version__)
 def main() -> None:
     """SemperFi: a spoofer-eliminating GPS L1 C/A receiver, and the world it is proven against."""
+    sys.unraisablehook = _unraisable
     _tune_heap()
     # numpy's floating-point RuntimeWarnings (all-zero or full-scale samples, a degenerate rate) are no message for a
     # user: what they lead to is reported in words (no signal, clipping, an event); the tests still see them

@@ -147,3 +147,34 @@ def test_fly_checks_its_track_file_before_flying(tmp_path):
     blocked.write_text("")
     one_line_error(semperfi("fly", "--vehicle", "udpin:127.0.0.1:14999", "-o", str(blocked / "track.csv")),
                    "cannot write")
+
+
+def test_a_ctrl_c_that_lands_in_a_finalizer_still_stops_the_command_and_other_finalizer_errors_are_one_line(capsys):
+    """A SIGINT delivered while a finalizer runs (llvmlite's, as numba compiled) was swallowed there with a traceback,
+    and `semperfi run` went on until killed. The CLI's unraisable hook raises it again in the main thread; anything
+    else a finalizer raises is one line on stderr."""
+    import time
+    from semperfi.cli import _unraisable
+
+    class Interrupted:
+        def __del__(self):
+            raise KeyboardInterrupt
+
+    class Broken:
+        def __del__(self):
+            raise ValueError("a finalizer's own bug\nits second line")
+
+    previous = sys.unraisablehook
+    sys.unraisablehook = _unraisable
+    try:
+        Broken()
+        err = capsys.readouterr().err
+        assert err == "semperfi: warning: ignored in a finalizer: ValueError: a finalizer's own bug\n", err
+        with pytest.raises(KeyboardInterrupt):
+            Interrupted()
+            deadline = time.monotonic() + 5.0
+            while time.monotonic() < deadline:   # the interrupt arrives at the main thread's next check
+                time.sleep(0.01)
+    finally:
+        sys.unraisablehook = previous
+    assert "Traceback" not in capsys.readouterr().err
