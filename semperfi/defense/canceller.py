@@ -279,6 +279,22 @@ LEAKING_SHARE = 0.01
 SHAPED_REACH_CHIPS = TAP_REACH_CHIPS
 BACKFILL_COHERENT_WITHIN_CHIPS_S = 0.5   # the DLL's code rate and the carrier's, apart by less: the carrier's
 TWIN_GAIN = 0.5                   # fraction of each buffer's measured twin offset error applied
+# Behind a front end the two rounded paths' fit says where the twin is only while its carrier stands off its
+# spoofer's: the bank's real products then span both paths, in phase (or in anti-phase) one vector, and the fit slides
+# along a ridge of place against amplitude. GPS-SDR-SIM behind 1 MHz, static, 500 m, +6 dB: twins 0.38 and 0.49 chip
+# off turning 0.04-0.06 Hz against their spoofers were placed within 0.02 chip while |sin| of their phase apart
+# stayed over 0.85, drawn 0.04 chip off by 0.6, 0.1-0.26 chip off (and the spoofer's amplitude with them) near 0 and
+# 180 degrees. A settled twin turning slower than TWIN_SLOW_HZ is placed by the buffers in quadrature
+# (TWIN_QUADRATURE_SIN) alone, each weighed by sin^2 over TWIN_PLACE_MEMORY_S (a twin 0.013 chip off its place still
+# biased its range 3-4 m), and held there through the stretches between, moved only as its carrier predicts, for up
+# to TWIN_HOLD_S after its last placing: a real twin's phase turns on (a 0.01 Hz beat stays within 30 degrees of
+# in-phase 15 s at a time), a front end's phantom of the spoofer's own chips never leaves it, and unplaced for
+# TWIN_PLACED_S it is fitted buffer by buffer as before.
+TWIN_SLOW_HZ = 1.0
+TWIN_QUADRATURE_SIN = 0.85
+TWIN_PLACE_MEMORY_S = 10.0
+TWIN_PLACED_S = 1.0
+TWIN_HOLD_S = 20.0
 # Once settled on chips found ideal, a joint track fits the offsets on its bank's products (signal_products) carried
 # over the last TWIN_MEMORY_S or so, each buffer's weighed down by exp(-its length / TWIN_MEMORY_S): the two paths'
 # offsets change slowly, and one 50 ms buffer scatters the twin's by 0.009 chip RMS (a 45 dB-Hz twin 0.8 chip from a
@@ -346,6 +362,10 @@ class AdversaryTrack:
                                        # they differ in Doppler
         self._legit_est: np.ndarray | None = None   # its amplitude per code period of the last buffer
         self._twin_lag = 0.0           # and where it was, from the spoofer's replica
+        self._placed_ms = 0            # periods of a settled twin fitted in quadrature with its spoofer ...
+        self._last_placed_ms: int | None = None   # ... the period the latest such buffer ended on ...
+        self._placed_weight = 0.0      # ... and their weight in its place (TWIN_PLACE_MEMORY_S)
+        self._bank: tuple[np.ndarray, np.ndarray] | None = None   # the last fit's correlations and lags
         self._products: tuple[np.ndarray, np.ndarray] | None = None   # (lags, products) carried (TWIN_MEMORY_S)
         self._ref_start = 0j           # _ref before this buffer's periods (the refit smooths them again)
         self._lam = 1.0 / cfg.smoothing_ms
@@ -437,15 +457,43 @@ class AdversaryTrack:
         paths, prompt = self._two_paths(work, base_sample, blocks, add=est, carry=True)
         if paths is None:
             return None
+        placing = self._twin_placing(paths, len(blocks))
+        if placing is None:
+            self.legit_offset_chips += TWIN_GAIN * (paths.separation_chips - self.legit_offset_chips)
+        elif placing == "held":   # the spoofer on its replica, the twin where it was placed
+            paths = paths_at(self.prn, *self._bank, 0.0, float(self.legit_offset_chips), self.shape)
         self._legit_est = self._legit_amplitudes(paths.twin_amplitudes)
         self._twin_lag = paths.twin_offset_chips
-        self.legit_offset_chips += TWIN_GAIN * (paths.separation_chips - self.legit_offset_chips)
         # the spoofer's prompt less the twin's share of it: the residual at the replica, the twin subtracted
         beta = prompt - self._legit_est * code_overlap(blocks, self.channel.bank, paths.twin_offset_chips,
                                                        self.subtract_bank)
         beta = np.where(np.isfinite(beta), beta, est)
         again, self._ref = decision_smooth(beta, self._ref_start, self._lam)
         return again - est
+
+    def _twin_placing(self, paths: TwoPaths, periods: int) -> str | None:
+        """How a slowly turning settled twin behind a front end is placed by this buffer's fit: 'placed' (the carriers
+        in quadrature, TWIN_QUADRATURE_SIN: the fit moves the place by its weight), 'held' (near phase: the place
+        stays), None where the fit is taken buffer by buffer as before (chips not found rounded, a twin crossing or
+        turning fast, one placed too little or too long ago)."""
+        meter = self.front_end
+        if meter is None or not meter.done or meter.shape.rectangular or self._crossing() or self._bank is None \
+                or not self.settled or abs(self._turn_hz) >= TWIN_SLOW_HZ or self._ref == 0 or self._legit_ref == 0:
+            return None
+        sin = float(np.sin(np.angle(self._legit_ref * np.conj(self._ref))))
+        if abs(sin) >= TWIN_QUADRATURE_SIN:
+            weight = sin ** 2
+            self._placed_weight = self._placed_weight * np.exp(-periods * CA_CODE_PERIOD_S / TWIN_PLACE_MEMORY_S) \
+                + weight
+            self.legit_offset_chips += weight / self._placed_weight * (paths.separation_chips
+                                                                        - self.legit_offset_chips)
+            self._placed_ms += periods
+            self._last_placed_ms = self.channel.ms
+            return "placed"
+        if self._last_placed_ms is not None \
+                and (self.channel.ms - self._last_placed_ms) * CA_CODE_PERIOD_S > TWIN_HOLD_S:
+            self._placed_ms, self._last_placed_ms, self._placed_weight = 0, None, 0.0
+        return "held" if self._placed_ms * CA_CODE_PERIOD_S >= TWIN_PLACED_S else None
 
     @property
     def _turn_hz(self) -> float:
@@ -470,6 +518,7 @@ class AdversaryTrack:
         y, power = correlator_bank(x, base_sample, blocks, self.channel.bank, lags, add, self.cfg.real_samples,
                                    self.subtract_bank)
         prompt = y[:, -1]
+        self._bank = (y[:, :-1], lags[:-1])
         if crossing:
             self._products = None
             return self._split_by_carrier(prompt), prompt
