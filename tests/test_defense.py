@@ -1087,3 +1087,50 @@ def test_a_fix_on_a_channel_just_started_is_not_yet_called_recovered():
     assert not rx._settled([3, 7]) and rx._settled([3])
     rx.inner.channels[7] = channel(settled_ms)
     assert rx._settled([3, 7])
+
+
+def test_a_replica_on_the_weaker_path_of_a_guess_on_the_stronger_is_started_again_on_the_stronger():
+    """PRN 6's spoofer 10 dB over its twin, 0.4 chip before it; the cancellation guessed the stronger peak the
+    attacker's, but its track began on the twin (its hint on the wrong side: behind a front end the two rounded
+    peaks merge, and GPS-SDR-SIM's static 500 m +10 dB PRN 7 went so). Settled, the track finds its 'twin' 10 dB
+    stronger than what its replica follows: it is started again on that path, once, with an event; a PRN not
+    cancelled on that guess is left alone."""
+    from semperfi.defense.guard import ROLES_SWAPPED_DB, SpoofGuard
+    from semperfi.gps import CA_CHIP_RATE_HZ, L1_HZ
+    from semperfi.receiver.acquisition import Peak
+    fs, doppler, prn, spoofer_chips, twin_chips = 2.6e6, 1200.0, 6, 100.0, 100.4
+    rng = np.random.default_rng(7)
+    t = np.arange(int(1.2 * fs)) / fs
+    x = ca_signal(prn, t, spoofer_chips, doppler, 10 ** (10 / 20), 0.3) \
+        + ca_signal(prn, t, twin_chips, doppler, 1.0, 1.9)
+    x = (x + np.sqrt(10 ** -4.6 * fs / 2) * (rng.standard_normal(t.size) + 1j * rng.standard_normal(t.size)))
+    x = x.astype(np.complex64)
+
+    def run(assumed: bool):
+        guard = SpoofGuard(load_config(None, []), fs)
+        guard.canceller.cancel(Peak(prn, twin_chips, doppler, 0.0, 51.0), 0, 0, spoofer_chips)
+        guard.guessed.add(prn)
+        if assumed:
+            guard._assumed_stronger.add(prn)
+        events = []
+        guard._emit = lambda event, t_s, **kw: events.append((event, kw))
+        half = t.size // 2
+        guard.canceller.push(x[:half])
+        before = guard._tracks(prn)[0]
+        sample = int(before.channel.latest_epoch_sample - fs * 1e-3)
+        assert before.twin_advantage_db < -ROLES_SWAPPED_DB
+        guard._swap_weaker_replicas(sample, 0.6)
+        guard._swap_weaker_replicas(sample, 0.6)
+        guard.canceller.push(x[half:])
+        return guard._tracks(prn)[0], sample, events
+
+    track, _, events = run(True)
+    assert [e for e, _ in events] == ["roles_swapped"]
+    sample = int(track.channel.latest_epoch_sample - fs * 1e-3)
+    at = track.channel.code_phase_at(sample)
+    expected = (spoofer_chips + sample / fs * CA_CHIP_RATE_HZ * (1 + doppler / L1_HZ)) % 1023
+    assert abs((at - expected + 511.5) % 1023 - 511.5) < 0.05, (at, expected)
+    assert track.twin_advantage_db > ROLES_SWAPPED_DB and abs(track.legit_offset_chips - 0.4) < 0.05, \
+        (track.twin_advantage_db, track.legit_offset_chips)
+    track, _, events = run(False)
+    assert events == [] and track.twin_advantage_db < -ROLES_SWAPPED_DB

@@ -68,6 +68,12 @@ BEAT_STALE_S = 1.0     # a time push's beat unseen on a PRN this long: its separ
 COMMON_WAIT_S = 1.0    # a beat on a few PRNs alike, no alarm yet: how long the others have to show it too
 MAX_SWAPS = 2          # a PRN whose cancelled peak is found legitimate this often is given up
 MAX_REMOVALS = 3       # a PRN taken out is taken out again this often at most, each time its removal ends
+# A cancellation that assumed the stronger of two peaks the attacker's whose settled joint track finds its twin this
+# much stronger than what its replica follows has its replica on the weaker signal: a close pair whose rounded peaks
+# merge, the twin hint on the wrong side, the loops drawn onto the other path (GPS-SDR-SIM behind 1 MHz, static, 500 m,
+# +10 dB: PRN 7's replica on the legitimate signal, its "twin" the spoofer 10 dB stronger, the PRN then given up as a
+# biased twin). It is started again on the stronger path, once.
+ROLES_SWAPPED_DB = 3.0
 ABSENT_MARGIN_S = 1.0  # a full search's absent PRNs stand this long past the next one's due time (then: search again)
 SUSPECT_FOR_S = 10.0   # ranges that disagree, no alarm yet: how long every look stays at the highest sensitivity
 EXAMINE_MAX_PEAKS = 16  # a strong spoofer's Doppler and code sidelobes are local maxima too: room for its twin
@@ -177,6 +183,8 @@ class SpoofGuard:
         self.removed: set[int] = set()                   # PRNs given up and taken out whole (remove_given_up)
         self._removals: dict[int, int] = {}              # how often each was (taken out again: _keep_removed)
         self._twin_judged: set[int] = set()              # verified PRNs whose twin the plug-in filter has judged
+        self._assumed_stronger: set[int] = set()         # PRNs cancelled on the guess that the stronger peak is it
+        self._roles_swapped: set[int] = set()            # ... restarted on their twin, the stronger (ROLES_SWAPPED_DB)
         # PRNs cancelled on power alone (no legitimate peak in sight); those whose cancellation takes everything away
         # are merged (the property)
         self._blind: set[int] = set()
@@ -841,6 +849,8 @@ class SpoofGuard:
             self.guessed.add(prn)
             if choice.legitimate is not None:
                 self._guess_gaps_db[prn] = gap_db(choice.adversarial, choice.legitimate)
+            if choice.legitimate is None or choice.adversarial.metric >= choice.legitimate.metric:
+                self._assumed_stronger.add(prn)
         if choice.legitimate is None and not choice.guessed and stage == 0:
             self._blind.add(prn)
         self.pending_verify[prn] = (t_s + self.d["verify_after_s"], peak, stage)
@@ -921,8 +931,33 @@ class SpoofGuard:
                     self._remove(prn, target, first, stage + 1, t_s)
             else:
                 self.pending_verify[prn] = (t_s + self.d["verify_after_s"], target, stage + 1)
+        self._swap_weaker_replicas(first, t_s)
         if self.remove_given_up:
             self._remove_biased_twins(first, t_s)
+
+    def _swap_weaker_replicas(self, sample: int, t_s: float) -> None:
+        """A cancellation guessed on the stronger peak whose one settled joint track follows the weaker of the two
+        (its twin ROLES_SWAPPED_DB stronger) is started again on its twin, the old replica's place its twin; once a
+        PRN, before its twin is judged."""
+        for prn in sorted((self._assumed_stronger & self.guessed) - self._roles_swapped - self._twin_judged
+                          - set(self.gave_up)):
+            tracks = self._tracks(prn)
+            if len(tracks) != 1:
+                continue
+            tr = tracks[0]
+            if not tr.settled or tr.twin_advantage_db is None or tr.twin_advantage_db > -ROLES_SWAPPED_DB:
+                continue
+            replica_chips = tr.channel.code_phase_at(sample)
+            if replica_chips is None:
+                continue
+            twin = Peak(prn, float((replica_chips + tr.legit_offset_chips) % CA_CODE_LENGTH_CHIPS),
+                        tr.channel.doppler_at(0), 0.0, 0.0)
+            self._roles_swapped.add(prn)
+            self.canceller.drop(prn)
+            self.canceller.cancel(twin, sample, 0, replica_chips)
+            self._emit("roles_swapped", t_s, prn=prn, twin_advantage_db=round(tr.twin_advantage_db, 1),
+                       code_phase_chips=round(twin.code_phase_chips, 4),
+                       reason="the replica followed the weaker of the two paths: started again on the stronger")
 
     def _remove_biased_twins(self, sample: int, t_s: float) -> None:
         """The plug-in filter's verified PRNs whose legitimate twin lies too close under a much stronger spoofer
