@@ -1093,9 +1093,10 @@ def test_a_replica_on_the_weaker_path_of_a_guess_on_the_stronger_is_started_agai
     """PRN 6's spoofer 10 dB over its twin, 0.4 chip before it; the cancellation guessed the stronger peak the
     attacker's, but its track began on the twin (its hint on the wrong side: behind a front end the two rounded
     peaks merge, and GPS-SDR-SIM's static 500 m +10 dB PRN 7 went so). Settled, the track finds its 'twin' 10 dB
-    stronger than what its replica follows: it is started again on that path, once, with an event; a PRN not
-    cancelled on that guess is left alone."""
-    from semperfi.defense.guard import ROLES_SWAPPED_DB, SpoofGuard
+    stronger than what its replica follows: it is started again on that path, once, with an event, when its twin is
+    judged (measured, the chips' shape known: before, a front end's rounding passes for twins); a PRN not cancelled
+    on that guess is left alone."""
+    from semperfi.defense.guard import JUDGED_AFTER_WINDOWS, ROLES_SWAPPED_DB, SpoofGuard
     from semperfi.gps import CA_CHIP_RATE_HZ, L1_HZ
     from semperfi.receiver.acquisition import Peak
     fs, doppler, prn, spoofer_chips, twin_chips = 2.6e6, 1200.0, 6, 100.0, 100.4
@@ -1119,6 +1120,10 @@ def test_a_replica_on_the_weaker_path_of_a_guess_on_the_stronger_is_started_agai
         before = guard._tracks(prn)[0]
         sample = int(before.channel.latest_epoch_sample - fs * 1e-3)
         assert before.twin_advantage_db < -ROLES_SWAPPED_DB
+        guard._swap_weaker_replicas(sample, 0.6)       # judged only with its twin: nothing measured yet
+        assert events == []
+        before.attenuation_db.extend([(20.0, False)] * JUDGED_AFTER_WINDOWS)
+        guard.canceller.front_end.done = True           # the chips' shape decided (here: ideal)
         guard._swap_weaker_replicas(sample, 0.6)
         guard._swap_weaker_replicas(sample, 0.6)
         guard.canceller.push(x[half:])

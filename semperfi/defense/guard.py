@@ -938,14 +938,21 @@ class SpoofGuard:
     def _swap_weaker_replicas(self, sample: int, t_s: float) -> None:
         """A cancellation guessed on the stronger peak whose one settled joint track follows the weaker of the two
         (its twin ROLES_SWAPPED_DB stronger) is started again on its twin, the old replica's place its twin; once a
-        PRN, before its twin is judged."""
+        PRN, when its twin is judged and before."""
         for prn in sorted((self._assumed_stronger & self.guessed) - self._roles_swapped - self._twin_judged
                           - set(self.gave_up)):
             tracks = self._tracks(prn)
             if len(tracks) != 1:
                 continue
-            tr = tracks[0]
-            if not tr.settled or tr.twin_advantage_db is None or tr.twin_advantage_db > -ROLES_SWAPPED_DB:
+            tr, meter = tracks[0], self.canceller.front_end
+            # judged when a twin is (_remove_biased_twins), the chips' shape known: before, a front end's rounding
+            # fitted on ideal chips' model passes for a twin as strong as its spoofer or stronger (GPS-SDR-SIM behind
+            # 1 MHz, 3 km, +3 dB: four PRNs' replicas moved onto such phantoms in their first second, two spoofers
+            # left in the output)
+            if not tr.settled or len(tr.attenuation_db) < JUDGED_AFTER_WINDOWS \
+                    or (meter is not None and not meter.done):
+                continue
+            if tr.twin_advantage_db is None or tr.twin_advantage_db > -ROLES_SWAPPED_DB:
                 continue
             replica_chips = tr.channel.code_phase_at(sample)
             if replica_chips is None:
