@@ -46,11 +46,11 @@ def twin_offsets(monkeypatch, held: bool) -> np.ndarray:
 
 @pytest.mark.parametrize("held", [True, False])
 def test_a_close_twin_is_held_where_it_was_placed_while_its_carrier_is_in_phase(monkeypatch, held):
-    """Held, the twin stays where the buffers in quadrature placed it: there the fit on the measured shape places it
-    0.008 chip too far (this seeded scene; GPS-SDR-SIM's 0.38 chip twin 0.005), and the place averages a second or
-    more of buffers, each scattered by about 0.01 chip, so within twice the bias (measured: at most 0.011 chip).
-    Fitted buffer by buffer through the stretch in phase, the place slides along the fit's ridge (measured: 0.096
-    chip, 28 m of range the spoofer's subtraction is then wrong by)."""
+    """Held, the twin stays where the buffers in quadrature placed it: each one's fit scatters by about 0.01 chip
+    there, and the place averages a second or more of them, weighed by sin^2 (measured: at most 0.005 chip off);
+    the bound, 0.02 chip, allows the fit on the measured shape a bias of twice that scatter (0.008 chip seen in
+    another seed). Fitted buffer by buffer through the stretch in phase, the place slides along the fit's ridge
+    (measured: 0.135 chip, 40 m of range the spoofer's subtraction is then wrong by)."""
     worst = float(np.max(np.abs(twin_offsets(monkeypatch, held) - TWIN_CHIPS)))
     print(f"held {held}: the twin's place at most {worst:.4f} chip off")
     assert (worst < 0.02) == held, worst
