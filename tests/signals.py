@@ -48,3 +48,17 @@ def behind_front_end(fs_hz: float, cutoff_hz: float, duration_s: float, legit: l
                 v = np.sqrt(2) * np.real(v * np.exp(2j * np.pi * if_hz * t)) + 0j
             out[i].append(v[::up].astype(np.complex64))
     return np.concatenate(out[0]), np.concatenate(out[1])
+
+
+def cancelling_pairs(x: np.ndarray, fs_hz: float, spoofers: list[tuple], legit: list[tuple]):
+    """A Canceller started on each spoofer as its first 10 ms find it, its twin's place handed to it: spoofers and
+    legit as behind_front_end takes them, pairwise."""
+    from semperfi.defense.canceller import Canceller, CancellerConfig, refine_peak
+    from semperfi.receiver.acquisition import DopplerGrid, acquire
+    c = Canceller(fs_hz, 0.0, CancellerConfig())
+    look = x[:int(0.01 * fs_hz)]
+    for (prn, spoofer_chips, *_), (_, legit_chips, *_) in zip(spoofers, legit):
+        caf = acquire(look, fs_hz, [prn], DopplerGrid(max_hz=6000, step_hz=333), coherent_ms=2, noncoherent=5)[prn]
+        peak = refine_peak(look, fs_hz, 0.0, caf.best)
+        c.cancel(peak, 0, 0, legit_code_phase_chips=(peak.code_phase_chips + legit_chips - spoofer_chips) % 1023)
+    return c

@@ -15,7 +15,7 @@ from semperfi.defense.twopath_track import (bank_lags, correlator_bank, correlat
 from semperfi.gps import CA_CHIP_RATE_HZ, L1_HZ, SPEED_OF_LIGHT_M_S, ca_code
 from semperfi.receiver.acquisition import DopplerGrid, acquire
 from semperfi.receiver.correlator import code_bank
-from signals import behind_front_end
+from signals import behind_front_end, cancelling_pairs
 
 # a lowpass's rounding of the chips, roughly a 1.2 MHz front end's (the knots' gains: any will do for the kernels)
 GAUSSIAN = np.exp(-0.5 * (TAPS_CHIPS / 0.3) ** 2)
@@ -333,12 +333,7 @@ def test_a_close_twin_behind_a_front_end_keeps_its_range_when_the_shape_is_measu
     spoofers = [(8, 400.0, -2100.0, 1.9), (3, 100.0, 1200.0, 2.5)]
     amplitude = float(np.sqrt(10 ** 4.5 / fs) * np.sqrt(2))
     x, z = behind_front_end(fs, 1e6, 4.0, legit, spoofers, amplitude, 6.0)
-    c = Canceller(fs, 0.0, CancellerConfig())
-    look = x[:int(0.01 * fs)]
-    for (prn, spoofer_chips, *_), (_, legit_chips, *_) in zip(spoofers, legit):
-        caf = acquire(look, fs, [prn], DopplerGrid(max_hz=6000, step_hz=333), coherent_ms=2, noncoherent=5)[prn]
-        peak = refine_peak(look, fs, 0.0, caf.best)
-        c.cancel(peak, 0, 0, legit_code_phase_chips=(peak.code_phase_chips + legit_chips - spoofer_chips) % 1023)
+    c = cancelling_pairs(x, fs, spoofers, legit)
     step = int(0.05 * fs)
     y = np.concatenate([c.push(x[i:i + step]) for i in range(0, x.size, step)] + [c.flush()])
     track = c.stages[0].tracks[8]

@@ -5,9 +5,7 @@ import numpy as np
 import pytest
 
 from semperfi.defense import canceller as canceller_module
-from semperfi.defense.canceller import Canceller, CancellerConfig, refine_peak
-from semperfi.receiver.acquisition import DopplerGrid, acquire
-from signals import behind_front_end
+from signals import behind_front_end, cancelling_pairs
 
 FS = 2.6e6
 TWIN_CHIPS = 0.38
@@ -29,12 +27,7 @@ def twin_offsets(monkeypatch, held: bool) -> np.ndarray:
     spoofers = [(8, 400.0, -2100.0, 1.9), (3, 100.0, 1200.0, 2.5)]
     amplitude = float(np.sqrt(10 ** 4.5 / FS) * np.sqrt(2))
     x, _ = behind_front_end(FS, 1e6, SECONDS, legit, spoofers, amplitude, 6.0, seed=3)
-    c = Canceller(FS, 0.0, CancellerConfig())
-    look = x[:int(0.01 * FS)]
-    for (prn, spoofer_chips, *_), (_, legit_chips, *_) in zip(spoofers, legit):
-        caf = acquire(look, FS, [prn], DopplerGrid(max_hz=6000, step_hz=333), coherent_ms=2, noncoherent=5)[prn]
-        peak = refine_peak(look, FS, 0.0, caf.best)
-        c.cancel(peak, 0, 0, legit_code_phase_chips=(peak.code_phase_chips + legit_chips - spoofer_chips) % 1023)
+    c = cancelling_pairs(x, FS, spoofers, legit)
     step, offsets = int(BUFFER_S * FS), []
     for i in range(0, x.size, step):
         c.push(x[i:i + step])
