@@ -944,21 +944,19 @@ class SpoofGuard:
             tracks = self._tracks(prn)
             if len(tracks) != 1:
                 continue
-            tr, meter = tracks[0], self.canceller.front_end
+            tr = tracks[0]
             # judged when a twin is (_remove_biased_twins), the chips' shape known: before, a front end's rounding
             # fitted on ideal chips' model passes for a twin as strong as its spoofer or stronger (GPS-SDR-SIM behind
             # 1 MHz, 3 km, +3 dB: four PRNs' replicas moved onto such phantoms in their first second, two spoofers
             # left in the output)
-            if not tr.settled or len(tr.attenuation_db) < JUDGED_AFTER_WINDOWS \
-                    or (meter is not None and not meter.done):
+            if not tr.settled or len(tr.attenuation_db) < JUDGED_AFTER_WINDOWS or not self.canceller.front_end.done:
                 continue
             if tr.twin_advantage_db is None or tr.twin_advantage_db > -ROLES_SWAPPED_DB:
                 continue
-            replica_chips = tr.channel.code_phase_at(sample)
-            if replica_chips is None:
+            twin = self._at_twin_of(prn, sample)
+            if twin is None:
                 continue
-            twin = Peak(prn, float((replica_chips + tr.legit_offset_chips) % CA_CODE_LENGTH_CHIPS),
-                        tr.channel.doppler_at(0), 0.0, 0.0)
+            replica_chips = tr.channel.code_phase_at(sample)
             self._roles_swapped.add(prn)
             self.canceller.drop(prn)
             self.canceller.cancel(twin, sample, 0, replica_chips)
