@@ -1089,13 +1089,15 @@ def test_a_fix_on_a_channel_just_started_is_not_yet_called_recovered():
     assert rx._settled([3, 7])
 
 
-def test_a_replica_on_the_weaker_path_of_a_guess_on_the_stronger_is_started_again_on_the_stronger():
-    """PRN 6's spoofer 10 dB over its twin, 0.4 chip before it; the cancellation guessed the stronger peak the
-    attacker's, but its track began on the twin (its hint on the wrong side: behind a front end the two rounded
-    peaks merge, and GPS-SDR-SIM's static 500 m +10 dB PRN 7 went so). Settled, the track finds its 'twin' 10 dB
-    stronger than what its replica follows: it is started again on that path, once, with an event, when its twin is
-    judged (measured, the chips' shape known: before, a front end's rounding passes for twins); a PRN not cancelled
-    on that guess is left alone."""
+@pytest.mark.parametrize("why, later_stage", [("assumed", False), ("assumed", True), ("sky", True), (None, False)])
+def test_a_replica_on_the_weaker_path_of_the_stronger_is_started_again_on_the_stronger(why, later_stage):
+    """PRN 6's spoofer 10 dB over its twin, 0.4 chip before it; the cancellation took the stronger peak for the
+    attacker's (a guess, or its power: stronger than any satellite's), but its track began on the twin (its hint on
+    the wrong side: behind a front end the two rounded peaks merge, and GPS-SDR-SIM's static 500 m +10 dB PRN 7 went
+    so), and a later SIC stage may have been added on the spoofer that still dominated. Settled, the first stage's
+    track finds its 'twin' 10 dB stronger than what its replica follows: the PRN is started again on that path, its
+    later stages dropped, once, with an event, when its twin is judged (measured, the chips' shape known: before, a
+    front end's rounding passes for twins); a PRN not cancelled on the stronger peak is left alone."""
     from semperfi.defense.guard import JUDGED_AFTER_WINDOWS, ROLES_SWAPPED_DB, SpoofGuard
     from semperfi.gps import CA_CHIP_RATE_HZ, L1_HZ
     from semperfi.receiver.acquisition import Peak
@@ -1107,35 +1109,39 @@ def test_a_replica_on_the_weaker_path_of_a_guess_on_the_stronger_is_started_agai
     x = (x + np.sqrt(10 ** -4.6 * fs / 2) * (rng.standard_normal(t.size) + 1j * rng.standard_normal(t.size)))
     x = x.astype(np.complex64)
 
-    def run(assumed: bool):
-        guard = SpoofGuard(load_config(None, []), fs)
-        guard.canceller.cancel(Peak(prn, twin_chips, doppler, 0.0, 51.0), 0, 0, spoofer_chips)
+    guard = SpoofGuard(load_config(None, []), fs)
+    guard.canceller.cancel(Peak(prn, twin_chips, doppler, 0.0, 51.0), 0, 0, spoofer_chips)
+    if later_stage:
+        guard.canceller.cancel(Peak(prn, spoofer_chips, doppler, 0.0, 51.0), 0, 1)
+    if why == "assumed":
         guard.guessed.add(prn)
-        if assumed:
-            guard._assumed_stronger.add(prn)
-        events = []
-        guard._emit = lambda event, t_s, **kw: events.append((event, kw))
-        half = t.size // 2
-        guard.canceller.push(x[:half])
-        before = guard._tracks(prn)[0]
-        sample = int(before.channel.latest_epoch_sample - fs * 1e-3)
-        assert before.twin_advantage_db < -ROLES_SWAPPED_DB
-        guard._swap_weaker_replicas(sample, 0.6)       # judged only with its twin: nothing measured yet
-        assert events == []
-        before.attenuation_db.extend([(20.0, False)] * JUDGED_AFTER_WINDOWS)
-        guard.canceller.front_end.done = True           # the chips' shape decided (here: ideal)
-        guard._swap_weaker_replicas(sample, 0.6)
-        guard._swap_weaker_replicas(sample, 0.6)
-        guard.canceller.push(x[half:])
-        return guard._tracks(prn)[0], sample, events
-
-    track, _, events = run(True)
-    assert [e for e, _ in events] == ["roles_swapped"]
+        guard._assumed_stronger.add(prn)
+    elif why == "sky":
+        guard._stronger_than_sky.add(prn)
+    events = []
+    guard._emit = lambda event, t_s, **kw: events.append((event, kw))
+    half = t.size // 2
+    guard.canceller.push(x[:half])
+    before = guard._tracks(prn)[0]
+    assert len(guard._tracks(prn)) == 1 + later_stage
+    sample = int(before.channel.latest_epoch_sample - fs * 1e-3)
+    assert before.twin_advantage_db < -ROLES_SWAPPED_DB
+    guard._swap_weaker_replicas(sample, 0.6)       # judged only with its twin: nothing measured yet
+    assert events == []
+    before.attenuation_db.extend([(20.0, False)] * JUDGED_AFTER_WINDOWS)
+    guard.canceller.front_end.done = True           # the chips' shape decided (here: ideal)
+    guard._swap_weaker_replicas(sample, 0.6)
+    guard._swap_weaker_replicas(sample, 0.6)
+    guard.canceller.push(x[half:])
+    tracks = guard._tracks(prn)
+    track = tracks[0]
+    if why is None:
+        assert events == [] and track.twin_advantage_db < -ROLES_SWAPPED_DB
+        return
+    assert [e for e, _ in events] == ["roles_swapped"] and len(tracks) == 1
     sample = int(track.channel.latest_epoch_sample - fs * 1e-3)
     at = track.channel.code_phase_at(sample)
     expected = (spoofer_chips + sample / fs * CA_CHIP_RATE_HZ * (1 + doppler / L1_HZ)) % 1023
     assert abs((at - expected + 511.5) % 1023 - 511.5) < 0.05, (at, expected)
     assert track.twin_advantage_db > ROLES_SWAPPED_DB and abs(track.legit_offset_chips - 0.4) < 0.05, \
         (track.twin_advantage_db, track.legit_offset_chips)
-    track, _, events = run(False)
-    assert events == [] and track.twin_advantage_db < -ROLES_SWAPPED_DB

@@ -165,8 +165,11 @@ def test_the_vehicle_streams_only_what_it_is_asked_for(vehicle):
         acks = [m.result for m in got if m.get_type() == "COMMAND_ACK"]
         assert acks == [mav.MAV_RESULT_ACCEPTED, mav.MAV_RESULT_UNSUPPORTED], acks
         imu = [m for m in got if m.get_type() == "HIGHRES_IMU"]
-        rate_hz = (len(imu) - 1) / ((imu[-1].time_usec - imu[0].time_usec) / 1e6)
-        assert abs(rate_hz - 50.0) < 5.0 and {m.get_type() for m in got} <= {"HEARTBEAT", "COMMAND_ACK", "HIGHRES_IMU"}
+        # the rate on the vehicle's own clock, message to message: a loaded machine drops some datagrams (counted over
+        # the span, 44 Hz once with both cores busy), it does not move the stamps of those that arrive
+        interval_s = np.median(np.diff([m.time_usec for m in imu])) / 1e6
+        assert len(imu) > 10 and abs(1.0 / interval_s - 50.0) < 5.0
+        assert {m.get_type() for m in got} <= {"HEARTBEAT", "COMMAND_ACK", "HIGHRES_IMU"}
     finally:
         peer.close()
 

@@ -184,6 +184,7 @@ class SpoofGuard:
         self._removals: dict[int, int] = {}              # how often each was (taken out again: _keep_removed)
         self._twin_judged: set[int] = set()              # verified PRNs whose twin the plug-in filter has judged
         self._assumed_stronger: set[int] = set()         # PRNs cancelled on the guess that the stronger peak is it
+        self._stronger_than_sky: set[int] = set()        # ... and on power: stronger than any satellite's signal
         self._roles_swapped: set[int] = set()            # ... restarted on their twin, the stronger (ROLES_SWAPPED_DB)
         # PRNs cancelled on power alone (no legitimate peak in sight); those whose cancellation takes everything away
         # are merged (the property)
@@ -845,6 +846,8 @@ class SpoofGuard:
             self._emit("cancellation_refused", t_s, prn=prn, reason=self.gave_up[prn])
             return
         self.cancel_started.setdefault(prn, t_s)
+        if implausible:
+            self._stronger_than_sky.add(prn)
         if choice.guessed:
             self.guessed.add(prn)
             if choice.legitimate is not None:
@@ -936,15 +939,18 @@ class SpoofGuard:
             self._remove_biased_twins(first, t_s)
 
     def _swap_weaker_replicas(self, sample: int, t_s: float) -> None:
-        """A cancellation guessed on the stronger peak whose one settled joint track follows the weaker of the two
-        (its twin ROLES_SWAPPED_DB stronger) is started again on its twin, the old replica's place its twin; once a
-        PRN, when its twin is judged and before."""
-        for prn in sorted((self._assumed_stronger & self.guessed) - self._roles_swapped - self._twin_judged
-                          - set(self.gave_up)):
-            tracks = self._tracks(prn)
-            if len(tracks) != 1:
+        """A cancellation guessed on the stronger peak, or started on a peak stronger than any satellite's, whose
+        first stage's settled joint track follows the weaker of the two (its twin ROLES_SWAPPED_DB stronger) is started again on its twin, the old replica's place its twin,
+        and the later stages dropped with it: they were added because the spoofer still dominated (GPS-SDR-SIM behind
+        1 MHz, static, 500 m, +10 dB: PRN 7's stage 0 on the legitimate signal, stages 1 and 2 on the spoofer, the PRN
+        then given up and its removal lost, the spoofer left in the output). Once a PRN, when its twin is judged and
+        before."""
+        stronger = (self._assumed_stronger & self.guessed) | self._stronger_than_sky
+        for prn in sorted(stronger - self._roles_swapped - self._twin_judged - set(self.gave_up)):
+            first = self.canceller.stages[0].tracks.get(prn) if self.canceller.stages else None
+            if first is None:
                 continue
-            tr = tracks[0]
+            tr = first
             # judged when a twin is (_remove_biased_twins), the chips' shape known: before, a front end's rounding
             # fitted on ideal chips' model passes for a twin as strong as its spoofer or stronger (GPS-SDR-SIM behind
             # 1 MHz, 3 km, +3 dB: four PRNs' replicas moved onto such phantoms in their first second, two spoofers
@@ -953,7 +959,7 @@ class SpoofGuard:
                 continue
             if tr.twin_advantage_db is None or tr.twin_advantage_db > -ROLES_SWAPPED_DB:
                 continue
-            twin = self._at_twin_of(prn, sample)
+            twin = self._twin_peak(tr, sample)
             if twin is None:
                 continue
             replica_chips = tr.channel.code_phase_at(sample)
@@ -998,11 +1004,15 @@ class SpoofGuard:
         tracks = [tr for tr in self._tracks(prn) if tr.twin_advantage_db is not None]
         if not tracks:
             return None
-        tr = max(tracks, key=lambda t: t.twin_advantage_db)
+        return self._twin_peak(max(tracks, key=lambda t: t.twin_advantage_db), sample)
+
+    @staticmethod
+    def _twin_peak(tr, sample: int) -> Peak | None:
+        """Where a joint track's legitimate twin is at an absolute sample."""
         spoofer_chips = tr.channel.code_phase_at(sample)
         if spoofer_chips is None:
             return None
-        return Peak(prn, float((spoofer_chips + tr.legit_offset_chips) % CA_CODE_LENGTH_CHIPS),
+        return Peak(tr.prn, float((spoofer_chips + tr.legit_offset_chips) % CA_CODE_LENGTH_CHIPS),
                     tr.channel.doppler_at(0), 0.0, 0.0)
 
     def _keep_removed(self, t_s: float) -> None:
