@@ -77,6 +77,57 @@ def test_the_kernels_read_a_shaped_bank_as_their_references_read_the_shape(fs):
     assert abs(np.mean(slow) - ROUNDED.correlation(5, 0.6)) < 0.05   # the overlap is the shape's correlation
 
 
+def test_a_moved_shaped_bank_subtracts_a_spoofer_that_sits_off_its_replica():
+    """A bank moved by place_chips holds the shape that far ahead of the replica's code: a rounded spoofer sitting
+    0.012 chip off its replica (the two-path fits' place behind GPS-SDR-SIM's 1 MHz front end) is left at the bank's
+    quantization through it, and at the shape's own slope times that offset through the bank on the replica."""
+    fs, place = 2.6e6, 0.012
+    step = 1.023e6 / fs
+    period = int(np.ceil(1023 / step))
+    blocks = np.array([[0.0, period, 0.2731, step, 0.25, 0.0007], [period, period, 0.2731 + period * step - 1023,
+                                                                   step, 0.25 + period * 0.0007, 0.0007]])
+    amps = np.array([0.8 - 0.3j, 0.8 - 0.3j])
+    moved = shaped_bank(5, fs, ROUNDED, place)
+    phases, columns = moved.rows.shape
+    positions = (np.arange(columns) - moved.first) * moved.step_chips
+    assert np.max(np.abs(moved.rows[0] / moved.scale - ROUNDED.values(5, positions + place))) <= 0.5 / moved.scale + 1e-9
+    there = blocks.copy()
+    there[:, 2] += place                        # the spoofer's code, place_chips ahead of the replica's
+    spoofer = replicas_reference(2 * period, 0, there, amps, 5, ROUNDED)
+    on_replica = replicas_reference(2 * period, 0, blocks, amps, 5, ROUNDED)
+    left = {}
+    for name, x, bank in (("on the replica", spoofer, shaped_bank(5, fs, ROUNDED)), ("moved", spoofer, moved),
+                          ("a spoofer on its replica", on_replica, shaped_bank(5, fs, ROUNDED))):
+        y = x.astype(np.complex64)
+        subtract_replicas(y, 0, blocks, amps, bank)
+        left[name] = float(np.mean(np.abs(y) ** 2) / np.mean(np.abs(x) ** 2))
+    slope = np.diff(np.append(ROUNDED.waveform(5), ROUNDED.waveform(5)[0])) * 64   # per chip
+    expected = place ** 2 * np.mean(slope ** 2) / np.mean(ROUNDED.waveform(5) ** 2)
+    assert expected < left["on the replica"] < 1.5 * expected, (left, expected)   # (the staircase adds its own)
+    # moved, the bank's own floor (its steps and rounding, as for a spoofer on its replica)
+    assert left["moved"] < 2 * left["a spoofer on its replica"] < left["on the replica"] / 5, left
+
+
+def test_the_spoofers_place_is_the_median_of_the_tracks_that_learnt_theirs():
+    """Behind a front end the spoofers sit off their replicas by the same place, the front end's: the canceller
+    takes the median of the tracks that learnt theirs long enough (one bent by a close twin in phase outvoted),
+    none before PLACE_VOTERS have."""
+    from types import SimpleNamespace
+    from semperfi.defense.canceller import PLACE_LEARNT_S, PLACE_VOTERS
+    canceller = Canceller(2.6e6)
+    learnt = int(PLACE_LEARNT_S * 1000)
+
+    def track(place, ms):
+        return SimpleNamespace(spoofer_place_chips=place, place_learnt_ms=ms)
+    tracks = {1: track(0.011, learnt), 7: track(-0.038, learnt), 8: track(0.013, learnt), 17: track(0.4, learnt - 1)}
+    canceller.stages = [SimpleNamespace(tracks=dict(list(tracks.items())[:PLACE_VOTERS - 1]))]
+    canceller._vote_place()
+    assert canceller.front_end.place_chips == 0.0
+    canceller.stages = [SimpleNamespace(tracks=tracks), SimpleNamespace(tracks={21: track(0.012, 5 * learnt)})]
+    canceller._vote_place()
+    assert canceller.front_end.place_chips == pytest.approx(0.0115)
+
+
 def test_a_twin_is_fitted_on_its_spoofers_rounded_correlation():
     """The two-path fit with the front end's shape finds a twin where the rectangular model, fitting the wrong
     triangle, puts it off (noise-free correlations of a rounded spoofer and its twin 0.7 chip away)."""

@@ -294,6 +294,20 @@ TWIN_SLOW_HZ = 1.0
 TWIN_QUADRATURE_SIN = 0.85
 TWIN_PLACE_MEMORY_S = 10.0
 TWIN_PLACED_S = 1.0
+# Behind a front end the spoofer does not sit where its replica's early-late balance puts it in the shaped model's
+# frame: a joint track's two-path fit put every spoofer 0.005-0.011 chip off its replica, and what was subtracted lay
+# 0.014-0.022 chip from where the shape fits the spoofer best (GPS-SDR-SIM behind 1 MHz, static 500 m +6 dB), a
+# residual of a few per cent of the spoofer across its twin (PRN 1's range 3.5 m off, PRN 17's 2.9 m). The place is
+# the front end's and the loops', the same for every spoofer (0.009-0.017 chip over 10 of 12 PRNs at +3 dB), where a
+# close twin in phase bends one track's fit (PRN 7, 0.38 chip: -0.038): each joint track learns it from its fits over
+# PLACE_MEMORY_S (spoofer_place_chips), and every shaped replica is subtracted at the median of those that learnt it
+# PLACE_LEARNT_S or longer (ChipShapeMeter.place_chips, once PLACE_VOTERS have), in steps of PLACE_STEP_CHIPS (each
+# its own bank), within PLACE_MAX_CHIPS of the replica.
+PLACE_MEMORY_S = 2.0
+PLACE_LEARNT_S = 2.0
+PLACE_VOTERS = 3
+PLACE_STEP_CHIPS = 0.002
+PLACE_MAX_CHIPS = 0.05
 TWIN_HOLD_S = 20.0
 # Once settled on chips found ideal, a joint track fits the offsets on its bank's products (signal_products) carried
 # over the last TWIN_MEMORY_S or so, each buffer's weighed down by exp(-its length / TWIN_MEMORY_S): the two paths'
@@ -342,7 +356,9 @@ class AdversaryTrack:
                  front_end: ChipShapeMeter | None = None):
         self.prn, self.stage, self.cfg = prn, stage, cfg
         self.front_end = front_end     # the chips' shape as received (rectangular without one)
-        self._subtracted: tuple[ChipShape | None, CodeBank | None] = (None, None)   # the shape and its bank
+        self._subtracted: tuple[tuple | None, CodeBank | None] = (None, None)   # (shape, place) and its bank
+        self.spoofer_place_chips = 0.0   # where the spoofer sits from its replica, behind a front end (PLACE_*)
+        self.place_learnt_ms = 0         # ... learnt over this many code periods
         self.legit_offset_chips = legit_offset_chips
         # under a spoofer far stronger than any satellite (Canceller.cancel's defer_twin) a twin the two-path fit
         # placed within TWIN_NEAR_CHIPS on ideal chips' model may be a front end's rounding of the spoofer's own
@@ -388,12 +404,29 @@ class AdversaryTrack:
 
     @property
     def subtract_bank(self) -> CodeBank:
-        """The code as it is subtracted: shaped as the front end delivers it (tracking keeps rectangular chips). Held
-        here: the banks are shared while someone holds them, and built again (1 MB) when no one does."""
-        shape = self.shape
-        if self._subtracted[0] != shape:
-            self._subtracted = (shape, shaped_bank(self.prn, self.channel.fs_hz, shape))
+        """The code as it is subtracted: shaped as the front end delivers it (tracking keeps rectangular chips),
+        moved to where the spoofer sits (bank_place_chips). Held here: the banks are shared while someone holds them,
+        and built again (1 MB) when no one does."""
+        key = (self.shape, self.bank_place_chips)
+        if self._subtracted[0] != key:
+            self._subtracted = (key, shaped_bank(self.prn, self.channel.fs_hz, *key))
         return self._subtracted[1]
+
+    @property
+    def bank_place_chips(self) -> float:
+        """How far the subtracted bank's code is moved from the replica: the spoofers' place, on PLACE_STEP_CHIPS."""
+        if self.shape.rectangular:
+            return 0.0
+        return round(round(self.front_end.place_chips / PLACE_STEP_CHIPS) * PLACE_STEP_CHIPS, 6)
+
+    def _learn_place(self, paths: TwoPaths, periods: int) -> None:
+        """The spoofer's place from a two-path fit of this buffer, behind a front end (PLACE_MEMORY_S)."""
+        if self.shape.rectangular or not self.settled or self._crossing():
+            return
+        keep = np.exp(-periods * CA_CODE_PERIOD_S / PLACE_MEMORY_S)
+        place = keep * self.spoofer_place_chips + (1.0 - keep) * paths.spoofer_offset_chips
+        self.spoofer_place_chips = float(np.clip(place, -PLACE_MAX_CHIPS, PLACE_MAX_CHIPS))
+        self.place_learnt_ms += periods
 
     def seat_twin(self, twin: tuple[float, float] | None) -> None:
         """The twin the meter judged (ChipShapeMeter.fit_when_ready: offset from the spoofer, dB under it; None:
@@ -436,7 +469,7 @@ class AdversaryTrack:
             without_legit = np.array(tracked[start:], copy=True)
             subtract_replicas(without_legit, base_sample + start, blocks,
                               self._legit_amplitudes(paths.twin_amplitudes, update=not self.settled),
-                              self.subtract_bank, offset_chips=paths.twin_offset_chips)
+                              self.subtract_bank, offset_chips=paths.twin_offset_chips - self.bank_place_chips)
             self.channel = before
             prompts, _ = self.channel.process(without_legit, base_sample + start)
             blocks = self.channel.last_blocks
@@ -458,14 +491,19 @@ class AdversaryTrack:
         if paths is None:
             return None
         placing = self._twin_placing(paths, len(blocks))
-        if placing is None:
-            self.legit_offset_chips += TWIN_GAIN * (paths.separation_chips - self.legit_offset_chips)
-        elif placing == "held":   # the spoofer on its replica, the twin where it was placed
-            paths = paths_at(self.prn, *self._bank, 0.0, float(self.legit_offset_chips), self.shape)
+        if placing == "held":   # the spoofer where it sits, the twin where it was placed
+            place = self.bank_place_chips
+            paths = paths_at(self.prn, *self._bank, place, place + float(self.legit_offset_chips), self.shape)
+        else:
+            if placing == "placed" or abs(self._turn_hz) >= TWIN_SLOW_HZ:   # (near phase the fit slides: _twin_placing)
+                self._learn_place(paths, len(blocks))
+            if placing is None:
+                self.legit_offset_chips += TWIN_GAIN * (paths.separation_chips - self.legit_offset_chips)
         self._legit_est = self._legit_amplitudes(paths.twin_amplitudes)
         self._twin_lag = paths.twin_offset_chips
         # the spoofer's prompt less the twin's share of it: the residual at the replica, the twin subtracted
-        beta = prompt - self._legit_est * code_overlap(blocks, self.channel.bank, paths.twin_offset_chips,
+        beta = prompt - self._legit_est * code_overlap(blocks, self.channel.bank,
+                                                       paths.twin_offset_chips - self.bank_place_chips,
                                                        self.subtract_bank)
         beta = np.where(np.isfinite(beta), beta, est)
         again, self._ref = decision_smooth(beta, self._ref_start, self._lam)
@@ -557,11 +595,12 @@ class AdversaryTrack:
         noise (GPS-SDR-SIM, every PRN spoofed, +6 dB, twins 0.8 and 1 chip off: the spoofer 0.003 +- 0.006 chip, the
         twin 0.006 +- 0.015 chip), and refit() fits the buffer again on the replica tracked without the twin."""
         crossing = self._crossing()
-        lags = np.zeros(1) if crossing else np.array([0.0, self.legit_offset_chips])
+        place = self.bank_place_chips
+        lags = np.zeros(1) if crossing else np.array([place, place + self.legit_offset_chips])
         y, _ = correlator_bank(x, base_sample, blocks, self.channel.bank, lags)
         if crossing:
             return self._split_by_carrier(y[:, 0])
-        return paths_at(self.prn, y, lags, 0.0, float(self.legit_offset_chips), self.shape)
+        return paths_at(self.prn, y, lags, place, place + float(self.legit_offset_chips), self.shape)
 
     def _split_by_carrier(self, z: np.ndarray) -> TwoPaths | None:
         """A twin crossing its spoofer (CROSSING_CHIPS), at its predicted offset: the prompt per period is
@@ -987,7 +1026,15 @@ class Canceller:
         for st in self.stages:
             out = st.push(out)
         self._emitted += out.size
+        self._vote_place()
         return out
+
+    def _vote_place(self) -> None:
+        """The spoofers' place behind a front end: the median of the tracks that learnt theirs (PLACE_*)."""
+        learnt = [tr.spoofer_place_chips for st in self.stages for tr in st.tracks.values()
+                  if getattr(tr, "place_learnt_ms", 0) * CA_CODE_PERIOD_S >= PLACE_LEARNT_S]
+        if len(learnt) >= PLACE_VOTERS:
+            self.front_end.place_chips = float(np.median(learnt))
 
     def flush(self) -> np.ndarray:
         """The samples still held back, at the end of the stream."""

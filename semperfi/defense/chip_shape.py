@@ -189,17 +189,19 @@ def knot_values(prn: int, positions_chips: np.ndarray) -> np.ndarray:
 _BANKS: "weakref.WeakValueDictionary[tuple, CodeBank]" = weakref.WeakValueDictionary()
 
 
-def shaped_bank(prn: int, fs_hz: float, shape: ChipShape) -> CodeBank:
-    """The PRN's code bank with the shape's chips (int8, its largest value 127: within 0.4 % of the shape's peak):
-    what a subtraction reads. The rectangular shape's is the tracking bank itself."""
+def shaped_bank(prn: int, fs_hz: float, shape: ChipShape, place_chips: float = 0.0) -> CodeBank:
+    """The PRN's code bank with the shape's chips (int8, its largest value 127: within 0.4 % of the shape's peak),
+    the code place_chips ahead of the replica's (a spoofer that sits there): what a subtraction reads. The rectangular
+    shape's is the tracking bank itself."""
     bank = code_bank(prn, fs_hz)
     if shape.rectangular:
         return bank
-    key = (prn, fs_hz, shape)
+    key = (prn, fs_hz, shape, place_chips)
     out = _BANKS.get(key)
     if out is None:
         phases, columns = bank.rows.shape
-        positions = (np.arange(columns)[None, :] - bank.first + np.arange(phases)[:, None] / phases) * bank.step_chips
+        positions = (np.arange(columns)[None, :] - bank.first + np.arange(phases)[:, None] / phases) * bank.step_chips \
+            + place_chips
         scale = 127.0 / float(np.max(np.abs(shape.waveform(prn))))
         rows = np.round(shape.values(prn, positions) * scale).astype(np.int8)
         rows.flags.writeable = False
@@ -250,6 +252,7 @@ class ChipShapeMeter:
         self.explained: float | None = None     # the same as a difference, in units of the noise
         # each spoofer measured: its twin on the decided shape (offset from the spoofer, chips; dB under it), or None
         self.twins: dict[int, tuple[float, float] | None] = {}
+        self.place_chips = 0.0   # where the spoofers sit from their replicas on this shape (the canceller's vote)
         self._model, self._gains = _RectangularModel(), np.ones(1)   # decided
         self._seen: dict[int, _Seen] = {}
 
