@@ -331,21 +331,13 @@ BIASED_TWIN_DB = 17.0
 ASSUMED_ATTENUATION_DB = 32.0
 BIASED_RESIDUAL_DB = BIASED_TWIN_DB - ASSUMED_ATTENUATION_DB
 BIASED_WITHIN_CHIPS = 0.6
-# ... a twin whose carrier turns against its spoofer's this fast or faster takes what is left of the spoofer as a
-# multipath that turns through every phase several times within a receiver's code loop (GNSS-SDR's DLL: 2 Hz), its
-# pull averaged out: on a flying receiver 500 m from the claimed place (GPS-SDR-SIM behind 1 MHz, +10 and +15 dB) the
-# rule gave up PRNs 1 and 7, and GNSS-SDR behind the filter, left with four satellites, fixed 5.8 and 12.8 m off
-BIASED_STILL_HZ = 5.0
 
 
-def biased_twin(advantage_db: float, offset_chips: float, attenuation_db: float | None = None,
-                turn_hz: float = 0.0) -> bool:
+def biased_twin(advantage_db: float, offset_chips: float, attenuation_db: float | None = None) -> bool:
     """Whether a legitimate twin this far (chips) under a spoofer this much stronger (dB), whose cancellation
-    achieved attenuation_db (None: not measured yet), its carrier turning turn_hz against the spoofer's, keeps a
-    biased range after the spoofer's cancellation."""
+    achieved attenuation_db (None: not measured yet), keeps a biased range after the spoofer's cancellation."""
     achieved = ASSUMED_ATTENUATION_DB if attenuation_db is None else min(attenuation_db, ASSUMED_ATTENUATION_DB)
-    return advantage_db - achieved >= BIASED_RESIDUAL_DB and abs(offset_chips) < BIASED_WITHIN_CHIPS \
-        and abs(turn_hz) < BIASED_STILL_HZ
+    return advantage_db - achieved >= BIASED_RESIDUAL_DB and abs(offset_chips) < BIASED_WITHIN_CHIPS
 
 
 class AdversaryTrack:
@@ -540,11 +532,6 @@ class AdversaryTrack:
                 and (self.channel.ms - self._last_placed_ms) * CA_CODE_PERIOD_S > TWIN_HOLD_S:
             self._placed_ms, self._last_placed_ms, self._placed_weight = 0, None, 0.0
         return "held" if self._placed_ms * CA_CODE_PERIOD_S >= TWIN_PLACED_S else None
-
-    @property
-    def twin_turn_hz(self) -> float:
-        """How fast the twin's carrier turns against the spoofer's (0 until measured)."""
-        return self._turn_hz
 
     @property
     def _turn_hz(self) -> float:

@@ -1098,13 +1098,12 @@ class SpoofGuard:
         merged with its legitimate twin (its single peak may be a spoofer's whose twin is unseen)."""
         return not (self.resolved(prn) or prn in self.cancel_started or prn in self.merged)
 
-    def close_twin(self, prn: int) -> tuple[float, float, float | None, float] | None:
+    def close_twin(self, prn: int) -> tuple[float, float, float | None] | None:
         """(how much stronger than its legitimate twin the spoofer is in dB, the twin's offset in chips, the
-        attenuation its cancellation achieved lately in dB or None, how fast the twin turns against it in Hz) when
-        the two lie within JOINT_WITHIN_CHIPS, from the strongest of the PRN's tracks; None when none is so close
-        (canceller.biased_twin takes these)."""
-        twins = [(tr.twin_advantage_db, tr.legit_offset_chips, tr.latest_attenuation_db, tr.twin_turn_hz)
-                 for tr in self._tracks(prn) if tr.twin_advantage_db is not None]
+        attenuation its cancellation achieved lately in dB or None) when the two lie within JOINT_WITHIN_CHIPS, from
+        the strongest of the PRN's tracks; None when none is so close (canceller.biased_twin takes these)."""
+        twins = [(tr.twin_advantage_db, tr.legit_offset_chips, tr.latest_attenuation_db) for tr in self._tracks(prn)
+                 if tr.twin_advantage_db is not None]
         return max(twins, key=lambda t: t[0]) if twins else None
 
     def _forget_lost(self, t_s: float) -> None:
