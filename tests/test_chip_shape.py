@@ -90,7 +90,8 @@ def test_a_moved_shaped_bank_subtracts_a_spoofer_that_sits_off_its_replica():
     moved = shaped_bank(5, fs, ROUNDED, place)
     phases, columns = moved.rows.shape
     positions = (np.arange(columns) - moved.first) * moved.step_chips
-    assert np.max(np.abs(moved.rows[0] / moved.scale - ROUNDED.values(5, positions + place))) <= 0.5 / moved.scale + 1e-9
+    held = moved.rows[0] / moved.scale
+    assert np.max(np.abs(held - ROUNDED.values(5, positions + place))) <= 0.5 / moved.scale + 1e-9
     there = blocks.copy()
     there[:, 2] += place                        # the spoofer's code, place_chips ahead of the replica's
     spoofer = replicas_reference(2 * period, 0, there, amps, 5, ROUNDED)

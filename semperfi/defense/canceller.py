@@ -495,7 +495,8 @@ class AdversaryTrack:
             place = self.bank_place_chips
             paths = paths_at(self.prn, *self._bank, place, place + float(self.legit_offset_chips), self.shape)
         else:
-            if placing == "placed" or abs(self._turn_hz) >= TWIN_SLOW_HZ:   # (near phase the fit slides: _twin_placing)
+            # near phase a slow twin's fit slides (_twin_placing): the place is learnt in quadrature only
+            if placing == "placed" or abs(self._turn_hz) >= TWIN_SLOW_HZ:
                 self._learn_place(paths, len(blocks))
             if placing is None:
                 self.legit_offset_chips += TWIN_GAIN * (paths.separation_chips - self.legit_offset_chips)

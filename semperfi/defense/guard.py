@@ -940,17 +940,16 @@ class SpoofGuard:
 
     def _swap_weaker_replicas(self, sample: int, t_s: float) -> None:
         """A cancellation guessed on the stronger peak, or started on a peak stronger than any satellite's, whose
-        first stage's settled joint track follows the weaker of the two (its twin ROLES_SWAPPED_DB stronger) is started again on its twin, the old replica's place its twin,
-        and the later stages dropped with it: they were added because the spoofer still dominated (GPS-SDR-SIM behind
-        1 MHz, static, 500 m, +10 dB: PRN 7's stage 0 on the legitimate signal, stages 1 and 2 on the spoofer, the PRN
-        then given up and its removal lost, the spoofer left in the output). Once a PRN, when its twin is judged and
-        before."""
+        first stage's settled joint track follows the weaker of the two (its twin ROLES_SWAPPED_DB stronger) is
+        started again on its twin, the old replica's place its twin, and the later stages dropped with it: they were
+        added because the spoofer still dominated (GPS-SDR-SIM behind 1 MHz, static, 500 m, +10 dB: PRN 7's stage 0 on
+        the legitimate signal, stages 1 and 2 on the spoofer, the PRN then given up and its removal lost, the spoofer
+        left in the output). Once a PRN, when its twin is judged and before."""
         stronger = (self._assumed_stronger & self.guessed) | self._stronger_than_sky
         for prn in sorted(stronger - self._roles_swapped - self._twin_judged - set(self.gave_up)):
-            first = self.canceller.stages[0].tracks.get(prn) if self.canceller.stages else None
-            if first is None:
+            tr = self.canceller.stages[0].tracks.get(prn) if self.canceller.stages else None
+            if tr is None:
                 continue
-            tr = first
             # judged when a twin is (_remove_biased_twins), the chips' shape known: before, a front end's rounding
             # fitted on ideal chips' model passes for a twin as strong as its spoofer or stronger (GPS-SDR-SIM behind
             # 1 MHz, 3 km, +3 dB: four PRNs' replicas moved onto such phantoms in their first second, two spoofers
