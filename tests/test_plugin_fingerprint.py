@@ -76,3 +76,38 @@ def test_the_grid_holds_gnss_sdrs_runs_on_the_recordings_without_an_attacker_to_
     assert [grid.verdict(c) for c in (late_cleaned, good, far)] == ["FAIL", "pass", "FAIL"]
     assert grid.runs_passing([late_cleaned, good, far, {"case": "d", "error": "x"}]) == {
         "cleaned": (5, 7), "reference": (6, 7)}
+
+
+GNSS_SDR_CONSOLE = """Tracking of GPS L1 C/A signal started on channel 0 for satellite GPS PRN 01 (Block IIF)
+Loss of lock in channel 0!
+Tracking of GPS L1 C/A signal started on channel 5 for satellite GPS PRN 07 (Block IIR-M)
+Tracking of GPS L1 C/A signal started on channel 0 for satellite GPS PRN 10 (Block IIF)
+GPS L1 C/A tracking bit synchronization locked in channel 5 for satellite GPS PRN 07 (Block IIR-M)
+Loss of lock in channel 5!
+Loss of lock in channel 0!
+Loss of lock in channel 9!
+Tracking of GPS L1 C/A signal started on channel 5 for satellite GPS PRN 07 (Block IIR-M)
+Loss of lock in channel 5!
+"""
+
+
+def test_gnss_sdrs_losses_of_lock_are_counted_per_satellite_its_channel_held(tmp_path):
+    """A loss names a channel: it counts for the satellite that channel last started tracking (a channel reused
+    for another satellite counts for the new one; a channel never started counts for none)."""
+    from semperfi.eval.gnss_sdr import lock_losses
+    log = tmp_path / "gnss-sdr.log"
+    log.write_text(GNSS_SDR_CONSOLE)
+    assert lock_losses(log) == {1: 1, 7: 2, 10: 1}
+    assert lock_losses(tmp_path / "absent.log") == {}
+
+
+def test_the_grid_counts_gnss_sdrs_losses_of_lock_on_the_scenes_satellites_only():
+    """Per PRN over the runs, and over the grid on the satellites the scene holds (every one spoofed, so cancelled):
+    a false acquisition of a PRN not in the sky loses its lock on any file and counts for neither."""
+    grid = load_script("plugin-grid")
+    cell = {"case": "a", "cancelled": [7, 10],
+            "gnss_sdr_runs": {"cleaned": [{"lock_losses": {"7": 2, "3": 4}}, {"lock_losses": {"10": 1}}],
+                              "reference": [{"lock_losses": {}}, {"lock_losses": {"7": 1}}]}}
+    assert (grid.lock_losses(cell, "cleaned", "7"), grid.lock_losses(cell, "reference", "7")) == (2, 1)
+    assert grid.lock_losses({"case": "b", "gnss_sdr_runs": {"cleaned": [{"fixes": 0}]}}, "cleaned", "7") is None
+    assert grid.losses_over_grid([cell]) == {"cleaned": 3, "reference": 1}

@@ -288,6 +288,30 @@ def read_nmea_fixes(nmea_path: str | os.PathLike) -> list[Fix]:
     return fixes
 
 
+# GNSS-SDR's console: which satellite a channel took, and when a channel let it go
+_TRACKING_STARTED = re.compile(r"Tracking of GPS L1 C/A signal started on channel (\d+) for satellite GPS PRN (\d+)")
+_LOCK_LOST = re.compile(r"Loss of lock in channel (\d+)!")
+
+
+def lock_losses(log_path: str | os.PathLike) -> dict[int, int]:
+    """Per PRN, how often a GNSS-SDR run lost its lock (its console log: each loss names a channel, the channel's
+    satellite the one it last started tracking). A filter that leaves what a tracking loop stumbles on shows here
+    before it shows in the fixes. A missing or unreadable log gives nothing."""
+    try:
+        text = Path(log_path).read_text(encoding="utf-8", errors="replace")
+    except OSError:
+        return {}
+    satellite: dict[str, int] = {}
+    lost: dict[int, int] = {}
+    for line in text.splitlines():
+        if (started := _TRACKING_STARTED.search(line)) is not None:
+            satellite[started.group(1)] = int(started.group(2))
+        elif (loss := _LOCK_LOST.search(line)) is not None and loss.group(1) in satellite:
+            prn = satellite[loss.group(1)]
+            lost[prn] = lost.get(prn, 0) + 1
+    return lost
+
+
 # ----------------------------------------------------------------------------------------------------- run
 
 def gnss_sdr_version(exe: str = GNSS_SDR_EXE) -> str:

@@ -107,14 +107,14 @@ def fingerprint(case, nav_path: str | Path, work: Path, gnss_sdr: bool = True, f
     and, when asked and on PATH, GNSS-SDR (unmodified, RINEX on): per receiver, per PRN, range_differences (from
     from_s seconds into the recording), and what `clean` said it did. GNSS-SDR runs gnss_sdr_runs times on each
     file (its threads make each run differ: on one cleaned file its first fix came at 35, 53 and 59 s), every run's
-    score in out["gnss_sdr_runs"]; its first run gives the ranges."""
+    score in out["gnss_sdr_runs"] (with its losses of lock per PRN); its first run gives the ranges."""
     import shutil
 
     from ..defense import load_config
     from ..defense import clean_file
     from ..iq import format_by_name
     from ..receiver import NoSignal, run_file
-    from .gnss_sdr import GNSS_SDR_EXE, run_gnss_sdr
+    from .gnss_sdr import GNSS_SDR_EXE, LOG_NAME, lock_losses, run_gnss_sdr
     from .xgen import RECEIVER_SETTINGS, prepare, score
     data, reference = prepare(case, nav_path, work), prepare(case.clean, nav_path, work)
     cleaned = work / f"{case.tag}-clean.bin"
@@ -146,7 +146,7 @@ def fingerprint(case, nav_path: str | Path, work: Path, gnss_sdr: bool = True, f
                 shutil.rmtree(run_dir, ignore_errors=True)
                 fixes = run_gnss_sdr(path, case.fs_hz, case.item_type, case.if_hz, run_dir, 1800.0, trop_model="OFF",
                                      rinex=True)
-                runs.append(_gnss_sdr_score(fixes, case))
+                runs.append(_gnss_sdr_score(fixes, case) | {"lock_losses": lock_losses(run_dir / LOG_NAME)})
                 if i == 0:
                     found = sorted(p for p in run_dir.iterdir()
                                    if p.suffix[1:3].isdigit() and p.suffix[3:].upper() == "O")
