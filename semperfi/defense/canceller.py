@@ -1012,6 +1012,27 @@ class Canceller:
             offset = chips_offset(legit_code_phase_chips, peak.code_phase_chips)
         return self.stages[stage].add(peak, peak_sample, offset, defer_twin, removal)
 
+    def restart(self) -> None:
+        """Every stage begun again at the first sample with the tracks it holds now, their code and carrier carried
+        back there (the plug-in filter's start-up replay, SpoofGuard's replay_start: spoofers alarmed a second
+        apart are cancelled from the first sample alike). What the tracks judged of their twins and of the
+        spoofers' place is kept; their measurements start again."""
+        old, self.stages, self._emitted = self.stages, [], 0
+        for st in old:
+            stage = CancellerStage(self.fs_hz, self.if_hz, st.index, self.cfg, self.front_end)
+            for prn, tr in st.tracks.items():
+                chips, doppler_hz, sample = tr.channel.code_now()
+                twin = tr.suspect_chips
+                if twin is None and tr.legit_offset_chips is not None:   # where it was at the first sample
+                    twin = tr.legit_offset_chips - (tr._offset_rate_chips_s * sample / self.fs_hz if tr.settled
+                                                    else 0.0)
+                new = stage.add(Peak(prn, chips, doppler_hz, 0.0, float(tr.channel.cn0_dbhz)), sample, twin,
+                                defer_twin=tr.suspect_chips is not None and tr.defer_twin,
+                                removal=isinstance(tr, RemovalTrack))
+                new.defer_twin, new.dismissed_chips = tr.defer_twin, tr.dismissed_chips
+                new.spoofer_place_chips, new.place_learnt_ms = tr.spoofer_place_chips, tr.place_learnt_ms
+            self.stages.append(stage)
+
     def removing(self, prn: int) -> bool:
         """Whether a PRN's remainder is being taken out (a RemovalTrack follows it)."""
         return any(isinstance(st.tracks.get(prn), RemovalTrack) for st in self.stages)

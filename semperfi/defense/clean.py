@@ -54,7 +54,7 @@ def clean_file(in_path, out_path, fmt, fs_hz, if_hz, cfg: dict, events_path=None
                       "skip_s": source.skip_samples / source.fs_in_hz},
             description="SemperFi plug-in filter output (spoofing signals cancelled)") as writer:
         guard = SpoofGuard(cfg, source.fs_hz, source.if_hz, events, real_samples=source.real_valued,
-                           remove_given_up=True)
+                           remove_given_up=True, replay_start=True)
         monitor = Monitor(source.fs_hz, source.if_hz, events.emit)
         chunk_s = chunk_seconds(source.fs_hz)
         chunks = source.chunks(chunk_s)

@@ -84,6 +84,13 @@ EXAMINE_MAX_PEAKS = 16  # a strong spoofer's Doppler and code sidelobes are loca
 # that a pair a screen finds is confirmed when it would have been
 LOOK_APPLIED_AFTER_S = 0.3
 
+# The plug-in filter under an attack seen at the start holds its output this long at most, cancelling meanwhile for its
+# looks, then cleans the held samples again from the first with every spoofer known by then (replay_start): the looks
+# that find a weak satellite's spoofer search the samples cleaned of the stronger ones, so its alarm comes 0.4-1.1 s
+# after theirs (GPS-SDR-SIM, 1 km, +10 dB: five PRNs at 0.8 and 1.4 s), and each had passed whole until then -- a
+# receiver behind locked on it, then lost the satellite. Memory: the held raw samples (2 s at 10 MSa/s: 160 MB)
+REPLAY_MAX_S = 2.0
+
 
 @dataclass(frozen=True, eq=False)
 class _LookPlan:
@@ -138,12 +145,14 @@ class _Tail:
 class SpoofGuard:
     def __init__(self, cfg: dict, fs_hz: float, if_hz: float = 0.0, events=None, on_cancel=None, on_release=None,
                  maneuver=None, nav_context=None, real_samples: bool = False, continuing=None,
-                 remove_given_up: bool = False):
+                 remove_given_up: bool = False, replay_start: bool = False):
         """maneuver: a ManeuverIdentifier (an INS track with a maneuver in it), whose verdicts replace the policy's
         guesses; nav_context() -> (ephemeris_of(prn, tow_s), a recent fix) for its lines of sight.
         real_samples: the samples are real values at an IF (their output must stay real and free of both images).
         remove_given_up: what is left of a PRN given up is cancelled too (the plug-in filter: the receiver behind it
-        cannot be told to leave the satellite out)."""
+        cannot be told to leave the satellite out).
+        replay_start: under an attack seen at the start, the start's output is held and cleaned again with every
+        spoofer alarmed by then (REPLAY_MAX_S; the plug-in filter, whose receiver sees each spoofer left whole)."""
         self.cfg, self.d = cfg, cfg["defense"]
         if self.d["mode"] not in ("off", "detect", "full"):
             raise ValueError(f"--defense wants off, detect or full; got '{self.d['mode']}'")
@@ -218,6 +227,9 @@ class SpoofGuard:
         self._beat_seen_s: dict[int, float] = {}         # merged PRN -> when its beat was last seen the common one
         self._startup_samples = int(self.d["startup_s"] * fs_hz)
         self._held: list[np.ndarray] = []
+        self.replay_start = replay_start
+        self._replaying = False   # the start's raw samples held (and cleaned meanwhile for the looks), to clean again
+        self._replay_until = int(REPLAY_MAX_S * fs_hz)
         self._last_cafs: dict = {}
         self._last_look_first = -1
         self._looked: tuple[np.ndarray, int] | None = None   # the window the latest examination searched
@@ -264,9 +276,14 @@ class SpoofGuard:
         if starting:                      # hold the first samples until the first looks have decided
             self._held.append(chunk)
             return np.empty(0, dtype=np.complex64)
-        if self._held:
-            chunk = np.concatenate(self._held + [chunk])
-            self._held = []
+        if self._held and not self._replaying:   # the start-up's end: its samples go to the canceller
+            self._replaying = self.replay_start and self._attack_at_start()
+            self._held.append(chunk)
+            chunk = np.concatenate(self._held)
+            if not self._replaying:
+                self._held = []
+        elif self._replaying:
+            self._held.append(chunk)
         cleaned = self.canceller.push(chunk)
         self._tell_chip_shape()
         self._forget_lost(self._seen / self.fs_hz)
@@ -280,6 +297,38 @@ class SpoofGuard:
                 self._deep_under = under
             self._deep.push(cleaned)
         self._verify()
+        if self._replaying:
+            if not self._replay_due():
+                return np.empty(0, dtype=np.complex64)
+            cleaned = self._replay()
+        return cleaned
+
+    def _attack_at_start(self) -> bool:
+        """Anything seen of an attack by the end of the start-up's looks: an alarm, a pair to confirm."""
+        return bool(self.alarmed_prns or self.detector.sensitive or self.detector.pending())
+
+    def _replay_due(self) -> bool:
+        """The held start cleaned again now: every satellite found is cancelled (or given up), the looks saw no
+        attack after all, or REPLAY_MAX_S is reached."""
+        return (self._seen >= self._replay_until or not self._attack_at_start()
+                or self.present_prns <= self.canceller.prns | self.gave_up.keys())
+
+    def _replay(self) -> np.ndarray:
+        """The held start cleaned again from its first sample, by every track known now (Canceller.restart); the
+        samples the looks and verifications read are those."""
+        raw = np.concatenate(self._held)
+        self._held, self._replaying = [], False
+        self.canceller.restart()
+        cleaned = self.canceller.push(raw)
+        self._cleaned = cleaned.size
+        self._clean.clear()
+        self._clean.push(cleaned)
+        self._deep.clear()
+        self._deep_under = frozenset(self.canceller.prns)
+        if self.alarmed_prns:
+            self._deep.push(cleaned)
+        self._emit("start_replayed", self._seen / self.fs_hz, held_s=round(raw.size / self.fs_hz, 3),
+                   prns=sorted(self.canceller.prns))
         return cleaned
 
     def _tell_chip_shape(self) -> None:
@@ -314,6 +363,10 @@ class SpoofGuard:
         """The samples still held back, at the end of the stream."""
         if self._pending is not None:
             self._apply_pending()
+        if self._replaying:
+            cleaned = np.concatenate([self._replay(), self.canceller.flush()])
+            self._cleaned = cleaned.size
+            return cleaned
         held = np.concatenate(self._held) if self._held else np.empty(0, dtype=np.complex64)
         self._held = []
         cleaned = np.concatenate([self.canceller.push(held), self.canceller.flush()])

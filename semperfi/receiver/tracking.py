@@ -260,6 +260,11 @@ class Channel:
     def _bank_args(self) -> tuple:
         return self.bank.rows, self.bank.first, self.bank.step_chips, self._lanes
 
+    def code_now(self) -> tuple[float, float, float]:
+        """Where the loops hold the signal, in acquisition's convention: (the chip arriving at the next sample, the
+        carrier's Doppler, that sample) -- initial_state's arguments to start another channel on it."""
+        return float(self.st[CODE_PHASE]), float(self.st[CARR_FREQ]), float(self.st[NEXT_SAMPLE])
+
     def _update_lock(self, prompt: np.ndarray) -> None:
         self._window.append(prompt)
         self._window_len += prompt.size
