@@ -316,10 +316,11 @@ class SpoofGuard:
     def _replay(self) -> np.ndarray:
         """The held start cleaned again from its first sample, by every track known now (Canceller.restart); the
         samples the looks and verifications read are those."""
-        raw = np.concatenate(self._held)
-        self._held, self._replaying = [], False
+        held, self._held, self._replaying = self._held, [], False
         self.canceller.restart()
-        cleaned = self.canceller.push(raw)
+        # chunk by chunk, as they came: the tracks' loops and twin estimates settle per buffer as on a live stream,
+        # and no buffer is 2 s long (at 25 MSa/s, 400 MB and a copy per joint track)
+        cleaned = np.concatenate([self.canceller.push(part) for part in held])
         self._cleaned = cleaned.size
         self._clean.clear()
         self._clean.push(cleaned)
@@ -327,7 +328,7 @@ class SpoofGuard:
         self._deep_under = frozenset(self.canceller.prns)
         if self.alarmed_prns:
             self._deep.push(cleaned)
-        self._emit("start_replayed", self._seen / self.fs_hz, held_s=round(raw.size / self.fs_hz, 3),
+        self._emit("start_replayed", self._seen / self.fs_hz, held_s=round(self._seen / self.fs_hz, 3),
                    prns=sorted(self.canceller.prns))
         return cleaned
 
