@@ -122,6 +122,16 @@ def test_gnss_sdr_is_configured_for_real_samples_at_an_if():
         gnss_sdr_config("/tmp/r.bin", 10.4e6, "short", 0.0)
 
 
+def test_gnss_sdrs_acquisition_dwells_are_configurable_and_one_by_default():
+    """One dwell by default (the configuration every comparison so far ran with); the plug-in grid asks for two,
+    and a count GNSS-SDR cannot take is refused before it runs."""
+    from semperfi.eval.gnss_sdr import gnss_sdr_config
+    assert "Acquisition_1C.max_dwells=1" in gnss_sdr_config("/tmp/c.bin", 4e6, "gr_complex").splitlines()
+    assert "Acquisition_1C.max_dwells=2" in gnss_sdr_config("/tmp/c.bin", 4e6, "gr_complex", max_dwells=2).splitlines()
+    with pytest.raises(ValueError, match="max_dwells"):
+        gnss_sdr_config("/tmp/c.bin", 4e6, "gr_complex", max_dwells=0)
+
+
 @needs_gnss_sdr
 @pytest.mark.gnss_sdr
 def test_samples_at_a_long_path_are_read_through_a_short_link_and_a_flowgraph_that_never_ran_is_an_error(

@@ -111,3 +111,13 @@ def test_the_grid_counts_gnss_sdrs_losses_of_lock_on_the_scenes_satellites_only(
     assert (grid.lock_losses(cell, "cleaned", "7"), grid.lock_losses(cell, "reference", "7")) == (2, 1)
     assert grid.lock_losses({"case": "b", "gnss_sdr_runs": {"cleaned": [{"fixes": 0}]}}, "cleaned", "7") is None
     assert grid.losses_over_grid([cell]) == {"cleaned": 3, "reference": 1}
+
+
+def test_the_grid_says_how_many_satellites_gnss_sdr_observed_over_its_runs():
+    """The fewest to the most over the runs on the cleaned file, then on the scene without an attacker; '-' for runs
+    that did not count them (cells read back from an older cells.jsonl)."""
+    grid = load_script("plugin-grid")
+    cell = {"case": "a", "gnss_sdr_runs": {"cleaned": [{"satellites": 6}, {"satellites": 8}],
+                                           "reference": [{"satellites": 7}, {"satellites": 7}]}}
+    assert grid.satellites(cell) == "6-8, 7"
+    assert grid.satellites({"case": "b", "gnss_sdr_runs": {"cleaned": [{"fixes": 0}]}}) == "-, -"

@@ -78,7 +78,7 @@ def _fmt_float(value: float) -> str:
 def gnss_sdr_config(data_file: str | os.PathLike, fs_hz: float, item_type: str, if_hz: float = 0.0,
                     channels: int = 12, out_dir: str | os.PathLike = ".", trop_model: str = "Saastamoinen",
                     iono_model: str = "Broadcast", output_rate_ms: int = 100, doppler_max_hz: int = 10000,
-                    elevation_mask_deg: float = 5.0, rinex: bool = False) -> str:
+                    elevation_mask_deg: float = 5.0, rinex: bool = False, max_dwells: int = 1) -> str:
     """A complete GNSS-SDR 0.0.17 configuration for GPS L1 C/A from `data_file` (a path made absolute; a bare file
     name stays as written, in the directory GNSS-SDR runs in, as out_dir).
 
@@ -87,8 +87,11 @@ def gnss_sdr_config(data_file: str | os.PathLike, fs_hz: float, item_type: str, 
     multiplied by exp(-j 2 pi if_hz t) and low-passed before acquisition, which takes a real signal's mirror
     image away too); 0 uses a pass-through filter (complex samples only). NMEA, GPX, KML and GeoJSON go to
     `out_dir` (as written: relative to where GNSS-SDR runs); RINEX 3 observations and navigation too when `rinex`;
-    XML ephemeris dumps and RTCM are off.
+    XML ephemeris dumps and RTCM are off. `max_dwells`: the acquisition's dwells on a PRN and Doppler before it
+    gives up (1 ms each; 2 brings 36-40 dB-Hz satellites in, which one dwell at pfa 0.01 mostly misses).
     """
+    if not 1 <= int(max_dwells) <= 20:
+        raise ValueError(f"max_dwells must be 1-20, got {max_dwells!r}")
     if item_type not in ITEM_TYPES:
         raise ValueError(f"item_type must be one of {', '.join(ITEM_TYPES)}, got {item_type!r}")
     if trop_model not in TROP_MODELS:
@@ -187,7 +190,7 @@ def gnss_sdr_config(data_file: str | os.PathLike, fs_hz: float, item_type: str, 
         "Acquisition_1C.pfa=0.01",
         f"Acquisition_1C.doppler_max={doppler_max_hz}",
         "Acquisition_1C.doppler_step=250",
-        "Acquisition_1C.max_dwells=1",
+        f"Acquisition_1C.max_dwells={int(max_dwells)}",
         "Acquisition_1C.blocking=true",
         "Acquisition_1C.dump=false",
         "",

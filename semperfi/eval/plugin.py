@@ -102,12 +102,13 @@ def _mean_cn0(rows: dict) -> float | None:
 
 
 def fingerprint(case, nav_path: str | Path, work: Path, gnss_sdr: bool = True, from_s: float = 0.0,
-                gnss_sdr_runs: int = 1) -> dict:
+                gnss_sdr_runs: int = 1, gnss_sdr_dwells: int = 1) -> dict:
     """Clean a case's mix and receive it, and the same scene without an attacker, with our receiver (--defense off)
     and, when asked and on PATH, GNSS-SDR (unmodified, RINEX on): per receiver, per PRN, range_differences (from
     from_s seconds into the recording), and what `clean` said it did. GNSS-SDR runs gnss_sdr_runs times on each
     file (its threads make each run differ: on one cleaned file its first fix came at 35, 53 and 59 s), every run's
-    score in out["gnss_sdr_runs"] (with its losses of lock per PRN); its first run gives the ranges."""
+    score in out["gnss_sdr_runs"] (with its losses of lock per PRN and the satellites it observed); its first run
+    gives the ranges. gnss_sdr_dwells: its acquisition's (gnss_sdr_config's max_dwells)."""
     import shutil
 
     from ..defense import load_config
@@ -145,12 +146,13 @@ def fingerprint(case, nav_path: str | Path, work: Path, gnss_sdr: bool = True, f
                 run_dir = work / (f"{case.tag}-plugin-{name}-gnss-sdr" + (f"-{i}" if i else ""))
                 shutil.rmtree(run_dir, ignore_errors=True)
                 fixes = run_gnss_sdr(path, case.fs_hz, case.item_type, case.if_hz, run_dir, 1800.0, trop_model="OFF",
-                                     rinex=True)
-                runs.append(_gnss_sdr_score(fixes, case) | {"lock_losses": lock_losses(run_dir / LOG_NAME)})
+                                     rinex=True, max_dwells=gnss_sdr_dwells)
+                found = sorted(p for p in run_dir.iterdir() if p.suffix[1:3].isdigit() and p.suffix[3:].upper() == "O")
+                ranges = read_ranges(found[0]) if found else {}
+                runs.append(_gnss_sdr_score(fixes, case) | {"lock_losses": lock_losses(run_dir / LOG_NAME),
+                                                             "satellites": len(ranges)})
                 if i == 0:
-                    found = sorted(p for p in run_dir.iterdir()
-                                   if p.suffix[1:3].isdigit() and p.suffix[3:].upper() == "O")
-                    obs[name] = read_ranges(found[0]) if found else {}
+                    obs[name] = ranges
             out["fixes"].setdefault("gnss-sdr", {})[name] = runs[0]
             out.setdefault("gnss_sdr_runs", {})[name] = runs
         out["receivers"]["gnss-sdr"] = range_differences(obs["reference"], obs["cleaned"], t0_s)
