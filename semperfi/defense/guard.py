@@ -288,6 +288,16 @@ class SpoofGuard:
         self._tell_chip_shape()
         self._forget_lost(self._seen / self.fs_hz)
         self._keep_removed(self._seen / self.fs_hz)
+        self._keep_cleaned(cleaned)
+        self._verify()
+        if self._replaying:
+            if not self._replay_due():
+                return np.empty(0, dtype=np.complex64)
+            cleaned = self._replay()
+        return cleaned
+
+    def _keep_cleaned(self, cleaned: np.ndarray) -> None:
+        """Cleaned samples counted and kept for the looks and verifications that read them."""
         self._cleaned += cleaned.size
         self._clean.push(cleaned)
         if self.alarmed_prns:
@@ -296,12 +306,6 @@ class SpoofGuard:
                 self._deep.clear()
                 self._deep_under = under
             self._deep.push(cleaned)
-        self._verify()
-        if self._replaying:
-            if not self._replay_due():
-                return np.empty(0, dtype=np.complex64)
-            cleaned = self._replay()
-        return cleaned
 
     def _attack_at_start(self) -> bool:
         """Anything seen of an attack by the end of the start-up's looks: an alarm, a pair to confirm."""
@@ -321,13 +325,10 @@ class SpoofGuard:
         # chunk by chunk, as they came: the tracks' loops and twin estimates settle per buffer as on a live stream,
         # and no buffer is 2 s long (at 25 MSa/s, 400 MB and a copy per joint track)
         cleaned = np.concatenate([self.canceller.push(part) for part in held])
-        self._cleaned = cleaned.size
+        self._cleaned = 0
         self._clean.clear()
-        self._clean.push(cleaned)
         self._deep.clear()
-        self._deep_under = frozenset(self.canceller.prns)
-        if self.alarmed_prns:
-            self._deep.push(cleaned)
+        self._keep_cleaned(cleaned)
         self._emit("start_replayed", self._seen / self.fs_hz, held_s=round(self._seen / self.fs_hz, 3),
                    prns=sorted(self.canceller.prns))
         return cleaned
