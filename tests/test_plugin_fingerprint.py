@@ -121,3 +121,34 @@ def test_the_grid_says_how_many_satellites_gnss_sdr_observed_over_its_runs():
                                            "reference": [{"satellites": 7}, {"satellites": 7}]}}
     assert grid.satellites(cell) == "6-8, 7"
     assert grid.satellites({"case": "b", "gnss_sdr_runs": {"cleaned": [{"fixes": 0}]}}) == "-, -"
+
+
+@pytest.mark.parametrize("front_end_hz", [0.0, 1e6])
+def test_the_residual_profile_reads_what_clean_left_of_a_spoofer_at_its_lag_also_behind_a_front_end(
+        tmp_path, monkeypatch, front_end_hz):
+    """A 'cleaned' file that is the reference mix (the same noise) plus the spoofer 26 dB down: its profile holds
+    5 % of the spoofer at lag 0, in phase with it, and the twin where it was put -- the scenes, rendered faster behind
+    a front end, read through the same front end as the mix."""
+    from signals import ca_signal
+    from semperfi.eval import xgen
+    from semperfi.eval.plugin import residual_profile
+    from dataclasses import replace
+    case = xgen.Case(xgen.PLACES["boston"], 500.0, 6.0, duration_s=0.3, front_end_hz=front_end_hz)
+    fast = xgen.rendered(case)
+    t = np.arange(int(round(case.duration_s * fast.fs_hz))) / fast.fs_hz
+    scenes = []
+    for name, chips in (("legit", 300.5), ("spoof", 300.0)):   # the twin half a chip after its spoofer
+        z = ca_signal(11, t, chips, 1200.0, xgen.AMPLITUDE)
+        path = tmp_path / f"{name}.bin"
+        np.column_stack([z.real, z.imag]).round().astype(np.int16).tofile(path)
+        scenes.append(path)
+    monkeypatch.setattr(xgen, "scenes", lambda *a: tuple(scenes))
+    monkeypatch.setattr(xgen, "prepare", lambda c, *a: xgen.mix(scenes[0], None, tmp_path / "reference.bin", c))
+    residue_db = -26.0
+    cleaned = xgen.mix(*scenes, tmp_path / "cleaned.bin", replace(case, advantage_db=case.advantage_db + residue_db))
+    p = residual_profile(case, "", tmp_path, cleaned, 11, 0.05, span_s=0.1)
+    at_zero = int(np.argmin(np.abs(p.lags_chips)))
+    assert p.twin_offset_chips == pytest.approx(0.5, abs=0.2)
+    assert abs(p.spoofer_coherent[at_zero]) == pytest.approx(10 ** (residue_db / 20), rel=0.05)
+    assert abs(np.angle(p.spoofer_coherent[at_zero])) < 0.05
+    assert np.argmax(p.rms) == at_zero

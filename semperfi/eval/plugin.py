@@ -212,6 +212,7 @@ class ResidualProfile:
 
 
 PROFILE_LAGS_CHIPS = np.arange(-2.0, 2.001, 0.05)
+FRONT_END_SETTLE_S = 1e-3    # a front end's (xgen.FrontEnd) state settles within this: its response lasts microseconds
 
 
 def residual_profile(case, nav_path: str | Path, work: Path, cleaned: Path, prn: int, at_s: float,
@@ -219,13 +220,14 @@ def residual_profile(case, nav_path: str | Path, work: Path, cleaned: Path, prn:
     """The residual of one PRN's spoofer over span_s seconds from at_s: the cleaned samples less the clean scene's
     mix (the same legitimate signals and noise, as xgen mixes them) hold only what clean left of the spoofer and
     what it took of anything else; each is correlated with the PRN's code around the spoofer's code phase (found on
-    the spoofer's scene alone) and set against the spoofer's and the twin's own correlations."""
+    the spoofer's scene alone) and set against the spoofer's and the twin's own correlations. Behind a front end
+    the scenes, rendered faster, go through the same front end as the mix did (complex recordings only)."""
     from ..gps import ca_code
     from ..gps import CA_CHIP_RATE_HZ, L1_HZ
     from ..receiver import DopplerGrid, acquire
-    from .xgen import OUTPUT_SCALE, prepare, scenes
-    if case.front_end_hz:
-        raise ValueError("a residual profile reads the scenes at the recording's rate: not behind a front end")
+    from .xgen import OUTPUT_SCALE, FrontEnd, prepare, recording_s, rendered, scenes
+    if case.real or case.item_type != "ishort":
+        raise ValueError("a residual profile reads int16 IQ recordings: not real samples at an IF, nor int8")
     legit_scene, spoof_scene = scenes(case, nav_path, work)
     if spoof_scene is None:
         raise ValueError("a residual profile needs a case with a static or moving spoofer")
@@ -233,13 +235,29 @@ def residual_profile(case, nav_path: str | Path, work: Path, cleaned: Path, prn:
     fs = case.fs_hz
     n = int(round(span_s * fs))
     first = int(round(at_s * fs))
+    if first < 0 or n <= 0 or at_s + span_s > recording_s(case):
+        raise ValueError(f"a residual profile of {span_s:g} s from {at_s:g} s lies outside the "
+                         f"{recording_s(case):g} s recording")
+    up = int(round(rendered(case).fs_hz / fs))
+    settle = min(first, int(round(FRONT_END_SETTLE_S * fs)))   # the front end's state, from this much earlier
 
-    def read(path: Path, scale: float = 1.0) -> np.ndarray:
-        iq = np.memmap(path, dtype=np.int16, mode="r")[2 * first:2 * (first + n)].astype(np.float64)
-        return scale * (iq[0::2] + 1j * iq[1::2])
+    def iq16(path: Path, a: int, b: int) -> np.ndarray:
+        iq = np.memmap(path, dtype=np.int16, mode="r")[2 * a:2 * b].astype(np.float64)
+        return iq[0::2] + 1j * iq[1::2]
 
-    spoof = read(spoof_scene, OUTPUT_SCALE * 10 ** (case.advantage_db / 20.0))
-    legit = read(legit_scene, OUTPUT_SCALE)
+    def read_scene(path: Path, scale: float) -> np.ndarray:
+        if up == 1:
+            return scale * iq16(path, first, first + n)
+        fast = iq16(path, (first - settle) * up, (first + n) * up)
+        out = FrontEnd(case.front_end_hz, fs * up, up).filter(np.column_stack([fast.real, fast.imag]).ravel())
+        return scale * (out[0::2] + 1j * out[1::2]).astype(np.complex128)[settle:]
+
+    spoof = read_scene(spoof_scene, OUTPUT_SCALE * 10 ** (case.advantage_db / 20.0))
+    legit = read_scene(legit_scene, OUTPUT_SCALE)
+
+    def read(path: Path) -> np.ndarray:
+        return iq16(path, first, first + n)
+
     residual = read(cleaned) - read(reference)
     look = int(round(0.02 * fs))
     grid = DopplerGrid(0.0, 5000.0, 50.0)
