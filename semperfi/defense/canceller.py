@@ -16,8 +16,8 @@ from ..gps import (CA_CHIP_RATE_HZ, CA_CODE_LENGTH_CHIPS, CA_CODE_PERIOD_S, L1_H
                   chips_offset)
 from ..receiver import (Channel, CodeBank, DopplerGrid, LoopConfig, NEXT_SAMPLE, Peak, acquire, cores, fill_lanes,
                         initial_state, lane_buffer, replica, run_each, sub_block_samples)
-from .chip_shape import (LAGS_CHIPS, RECTANGULAR, TAP_REACH_CHIPS, TWIN_NEAR_CHIPS, ChipShape, ChipShapeMeter,
-                         shaped_bank)
+from .chip_shape import (LAGS_CHIPS, RECTANGULAR, TAP_REACH_CHIPS, TAPS_CHIPS, TWIN_NEAR_CHIPS, ChipShape,
+                         ChipShapeMeter, knot_bank, shaped_bank)
 from .twopath_track import TwoPaths, bank_lags, correlator_bank, fit_two_paths, paths_at, signal_products
 
 MEASURE_EVERY = 8                 # code periods per attenuation measurement
@@ -956,7 +956,9 @@ class CancellerStage:
                 return None
             blocks, prompts = blocks[settled], prompts[settled]
             y, power = correlator_bank(self._raw, self.base, blocks, tr.channel.bank, LAGS_CHIPS)
-            return tr, y, prompts / blocks[:, 1], noise_power(power, blocks), blocks[len(blocks) // 2]
+            knots = knot_bank(tr.prn, tr.channel.fs_hz)
+            k, _ = correlator_bank(self._raw, self.base, blocks, knots, TAPS_CHIPS)
+            return tr, y, k / knots.scale, prompts / blocks[:, 1], noise_power(power, blocks), blocks
         if self.front_end.done:
             tracks = [tr for tr in tracks if tr.suspect_chips is not None]
         else:   # the strongest only: a spoofer 6 dB weaker brings a quarter of the SNR for the same cost (101 lags)
@@ -965,8 +967,8 @@ class CancellerStage:
                       or tr.suspect_chips is not None]
         for seen in run_each(measure, tracks):
             if seen is not None:
-                tr, y, amplitudes, noise, block = seen
-                self.front_end.add(tr.prn, y, amplitudes, noise, block,
+                tr, y, knots, amplitudes, noise, blocks = seen
+                self.front_end.add(tr.prn, y, knots, amplitudes, noise, blocks,
                                    tr.legit_offset_chips if tr._joint() else None, tr.suspect_chips)
         for prn, twin in self.front_end.fit_when_ready().items():
             if prn in self.tracks:
