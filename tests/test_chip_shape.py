@@ -262,9 +262,9 @@ def test_a_twin_is_placed_from_what_the_spoofers_replica_leaves_whatever_its_pha
         noise = (rng.standard_normal((periods, n)) + 1j * rng.standard_normal((periods, n))) / np.sqrt(2)
         y += noise @ replicas.T / n
         meter = ChipShapeMeter()
-        # (placed_twin reads the replica's correlations alone: the knots' are not looked at)
-        meter.add(prn, y, np.zeros((periods, TAPS_CHIPS.size)), y[:, LAG_ZERO].copy(), 1.0 / n,
-                  np.repeat(block[None, :], periods, axis=0), None, suspect_chips=0.25)
+        # (placed_twin reads the replica's correlations alone: no knots' correlations)
+        meter.add(prn, y, None, y[:, LAG_ZERO].copy(), 1.0 / n, np.repeat(block[None, :], periods, axis=0), None,
+                  suspect_chips=0.25)
         placed = placed_twin(prn, meter._seen[prn], gains, model)
         if offset is None:
             assert placed is None

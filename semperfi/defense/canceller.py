@@ -956,9 +956,11 @@ class CancellerStage:
                 return None
             blocks, prompts = blocks[settled], prompts[settled]
             y, power = correlator_bank(self._raw, self.base, blocks, tr.channel.bank, LAGS_CHIPS)
-            knots = knot_bank(tr.prn, tr.channel.fs_hz)
-            k, _ = correlator_bank(self._raw, self.base, blocks, knots, TAPS_CHIPS)
-            return tr, y, k / knots.scale, prompts / blocks[:, 1], noise_power(power, blocks), blocks
+            knots = None
+            if not self.front_end.done:   # the knots' correlations serve the shape's fit alone
+                bank = knot_bank(tr.prn, tr.channel.fs_hz)
+                knots = correlator_bank(self._raw, self.base, blocks, bank, TAPS_CHIPS)[0] / bank.scale
+            return tr, y, knots, prompts / blocks[:, 1], noise_power(power, blocks), blocks
         if self.front_end.done:
             tracks = [tr for tr in tracks if tr.suspect_chips is not None]
         else:   # the strongest only: a spoofer 6 dB weaker brings a quarter of the SNR for the same cost (101 lags)
