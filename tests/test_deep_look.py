@@ -111,3 +111,38 @@ def test_a_longer_look_that_sees_nothing_fits_nothing(close_samples):
     guard = SpoofGuard(load_config(None, []), FS, 0.0, Events())
     empty = Caf(11, np.zeros(1), np.zeros(1), None, 1.0, 0.01, ())
     assert guard._deep_fit(close_samples[:int(0.1 * FS)], empty, {11: empty}) == []
+
+
+def _deep_pairs_for(prn: int, offsets):
+    """auxiliary_peaks with, for the longer looks at `prn` (a satellite alone), a second peak at offsets[i] chips from
+    its main one on the i-th look (None: none)."""
+    from dataclasses import replace
+    from semperfi.defense.detector import PeakPair
+    real, calls = guard_module.auxiliary_peaks, []
+
+    def pairs(caf, cafs, cfg, fs_hz, block_s=None):
+        if caf.prn != prn or block_s != guard_module.DEEP_CROSS_TALK_BLOCK_S:
+            return real(caf, cafs, cfg, fs_hz, block_s=block_s)
+        calls.append(caf.best)
+        offset = offsets[len(calls) - 1] if len(calls) <= len(offsets) else None
+        if offset is None:
+            return []
+        twin = replace(caf.best, code_phase_chips=(caf.best.code_phase_chips + offset) % 1023)
+        return [PeakPair(prn, caf.best, twin, abs(offset), "caf")]
+    return pairs, calls
+
+
+@pytest.mark.parametrize("offsets, alarmed", [
+    ((-6.5, None, -6.55, None, -6.5), True),      # a twin at the floor, found on every other look
+    ((-6.5, -6.0, -5.5, -5.0, -4.5), False)])     # what moves from look to look (cross-talk)
+def test_a_twin_found_on_looks_apart_alarms_what_moves_does_not(samples, monkeypatch, offsets, alarmed):
+    """A twin near the longer look's floor shows on some looks only (GPS-SDR-SIM, flying, 3 km, +15 dB: PRN 10's on 4
+    of 13, never two in a row, its spoofer through `clean` for 14 s): found again at its offset by a look within
+    DEEP_MEMORY_S, it alarms its PRN; a second peak whose offset moves from look to look never does."""
+    pairs, calls = _deep_pairs_for(14, offsets)
+    monkeypatch.setattr(guard_module, "auxiliary_peaks", pairs)
+    alarms = _alarms(_guard_over(samples))
+    assert len(calls) >= 3                          # the longer looks the offsets are given to
+    assert (14 in alarms) == alarmed, alarms.get(14)
+    if alarmed:
+        assert alarms[14]["found_by"] == "deep" and alarms[14]["separation_chips"] == pytest.approx(6.55, abs=0.01)

@@ -54,12 +54,19 @@ RELEASE_MARGIN_S = 2e-3   # a dropped cancellation leaves the samples cleaned th
 # spoofer it is too weak to show next to in 2 ms x 20 under a dozen spoofers' interference (GPS-SDR-SIM, path loss,
 # +6 dB: a 35.8 dB-Hz twin 2.9 chips from its spoofer was found after 22 s, and `clean` passed that spoofer through
 # until then). 10 ms x 10 on the cleaned samples sees a 36 dB-Hz twin at ~16 dB per coherent block. A peak found so
-# alarms when the next look finds it again as far from the main one (TWIN_MATCH_CHIPS): a twin keeps its offset from
-# its spoofer, while what a dozen +15 dB spoofers' cross-talk and bit flips raise moves with their code phases.
+# alarms when a look within DEEP_MEMORY_S found it as far from the main one (TWIN_MATCH_CHIPS): a twin keeps its
+# offset from its spoofer (a flying receiver's moves 0.02 chip/s at most), while what a dozen +15 dB spoofers'
+# cross-talk and bit flips raise moves with their code phases. Near the look's floor a twin shows on some looks only:
+# GPS-SDR-SIM, flying, 3 km, +15 dB, PRN 10's twin (34.5-36.7 dB-Hz, 26-33 Hz off its spoofer, between the look's
+# Doppler bins) was over it on 4 of 13 looks, never two in a row, and held to the next look alone its spoofer passed
+# through `clean` for 14 s.
+DEEP_MEMORY_S = 5.0
 DEEP_COHERENT_MS = 10
 DEEP_NONCOHERENT = 10
-DEEP_SPAN_HZ = 250.0      # a twin's Doppler is within a few hertz of a static spoofer's; a moving one's is found by
-DEEP_STEP_HZ = 50.0       # the full searches
+# A twin's Doppler is within a few hertz of a static spoofer's, tens of hertz off a flying receiver's (5 m/s: 26-33
+# Hz; one further off is for the full searches). Between bins 50 Hz apart 10 ms lose up to 0.9 dB, 25 Hz apart 0.2 dB
+DEEP_SPAN_HZ = 250.0
+DEEP_STEP_HZ = 25.0
 DEEP_CROSS_TALK_BLOCK_S = 1e-3   # cross-talk judged per code period (is_cross_talk): the strong signals' bit flips
 # The longer look's two-path fit (a fit is 8-35 ms of CPU a PRN at 2.6-10 MSa/s) only under a peak this strong: a twin
 # more than the fit's regular floor (13 dB) under a weaker one is under 30 dB-Hz, which 100 ms cannot resolve
@@ -172,7 +179,8 @@ class SpoofGuard:
         self.deep_window = int(round(fs_hz * 1e-3)) * DEEP_COHERENT_MS * DEEP_NONCOHERENT
         self._deep = _Tail(self.deep_window)               # the newest cleaned samples, for the longer looks
         self._deep_under: frozenset = frozenset()        # the PRNs cancelled while they were cleaned
-        self._deep_seen: dict[int, list[float]] = {}     # PRN -> offsets (chips) of the second peaks the last look saw
+        self._deep_seen: dict[int, list[tuple[float, float]]] = {}   # PRN -> (t_s, offset chips) of the second
+        # peaks the longer looks saw over DEEP_MEMORY_S
         self._seen = 0                                   # raw samples received
         self._cleaned = 0                                # cleaned samples produced
         self._next_exam = 0
@@ -537,6 +545,7 @@ class SpoofGuard:
         if not self.alarmed_prns or self._deep.size < self.deep_window:
             return
         first = self._cleaned - self._deep.size
+        t_s = first / self.fs_hz
         window = self._deep.array()
         looked, self._looked = self._looked, (window, first)
         a = self.cfg["acquisition"]
@@ -552,13 +561,12 @@ class SpoofGuard:
             pairs = auxiliary_peaks(deep, beside, self.detector.cfg, self.fs_hz, block_s=DEEP_CROSS_TALK_BLOCK_S) \
                 or self._deep_fit(window, deep, beside)
             offsets = [chips_offset(p.auxiliary.code_phase_chips, p.main.code_phase_chips) for p in pairs]
-            again = [p for p, o in zip(pairs, offsets)
-                     if any(abs(o - seen) < TWIN_MATCH_CHIPS for seen in self._deep_seen.get(prn, []))]
-            self._deep_seen[prn] = offsets
+            seen = [(t, o) for t, o in self._deep_seen.get(prn, []) if t_s - t <= DEEP_MEMORY_S]
+            again = [p for p, o in zip(pairs, offsets) if any(abs(o - s) < TWIN_MATCH_CHIPS for _, s in seen)]
+            self._deep_seen[prn] = seen + [(t_s, o) for o in offsets]
             if not again:
                 continue
             pair = replace(again[0], source="deep")
-            t_s = first / self.fs_hz
             self._alarm(prn, t_s, pair.as_event())
             if self.d["mode"] == "full":
                 self._on_alarm(Alarm(t_s, prn, pair, None), t_s)
