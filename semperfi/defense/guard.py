@@ -64,9 +64,11 @@ DEEP_MEMORY_S = 5.0
 DEEP_COHERENT_MS = 10
 DEEP_NONCOHERENT = 10
 # A twin's Doppler is within a few hertz of a static spoofer's, tens of hertz off a flying receiver's (5 m/s: 26-33
-# Hz; one further off is for the full searches). Between bins 50 Hz apart 10 ms lose up to 0.9 dB, 25 Hz apart 0.2 dB
+# Hz; one further off is for the full searches). Bins 25 Hz apart (10 ms lose 0.2 dB between them, 50 Hz apart 0.9
+# dB) found the flying receiver's twin above at 3.8 s, but a static one's never in 19 s (with 50 Hz: 8 s): they split
+# the spoofer's own Doppler sidelobes (+-150 Hz, 38-39 dB-Hz) into more peaks, and the twin fell off the peaks kept
 DEEP_SPAN_HZ = 250.0
-DEEP_STEP_HZ = 25.0
+DEEP_STEP_HZ = 50.0
 DEEP_CROSS_TALK_BLOCK_S = 1e-3   # cross-talk judged per code period (is_cross_talk): the strong signals' bit flips
 # The longer look's two-path fit (a fit is 8-35 ms of CPU a PRN at 2.6-10 MSa/s) only under a peak this strong: a twin
 # more than the fit's regular floor (13 dB) under a weaker one is under 30 dB-Hz, which 100 ms cannot resolve
