@@ -580,7 +580,7 @@ class AdversaryTrack:
         signal's power is twice its complex amplitude's (the mirror image)."""
         images = 2.0 if self.cfg.real_samples else 1.0
         own = images * (abs(self._ref) ** 2 + abs(self._legit_ref) ** 2)
-        return max(0.0, noise_power(power, blocks) - own / float(np.mean(blocks[:, 1])))
+        return max(0.0, noise_power(power - own, blocks))
 
     def _chips_known_ideal(self) -> bool:
         """Whether the meter found the chips rectangular, the two-path model then exact: behind a front end its
