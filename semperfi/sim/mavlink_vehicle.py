@@ -19,7 +19,8 @@ position), and GUIDED_NOGPS flies SET_ATTITUDE_TARGET: the tilt gives the accele
 
 The other end is assumed hostile: undecodable bytes, bad CRCs, non-finite or out-of-frame setpoints and unknown
 commands are counted in `rejected` (and logged), never acted on, and never stop the loop. Time runs `time_scale`
-times faster than the wall clock (tests fly a 20 s maneuver in a second or two); `time_boot_ms` is vehicle time.
+times faster than the wall clock (tests fly a 20 s maneuver in a second or two), slower when the machine is busy;
+`time_boot_ms` is vehicle time.
 """
 
 from __future__ import annotations
@@ -120,13 +121,18 @@ class MavlinkVehicle:
                 pass   # it went away
 
     def run(self, stop: threading.Event) -> None:
-        """Step in (scaled) real time until stop is set."""
+        """Step in (scaled) real time until stop is set. Starved of the CPU, the vehicle's time stalls with its peer's
+        rather than racing to catch up: a burst of steps would fly seconds of vehicle time (at x20) on setpoints its
+        pilot, starved too, had no turn to update, and flood the pilot's socket."""
         wall0 = time.monotonic()
+        step_wall_s = 1.0 / (PHYSICS_HZ * self.time_scale)
         while not stop.is_set():
             self.step()
             lag = wall0 + self.t_s / self.time_scale - time.monotonic()
             if lag > 0:
                 time.sleep(lag)
+            elif lag < -step_wall_s:
+                wall0 -= lag + step_wall_s   # behind by more than a step: the time lost is not made up
 
     def step(self) -> None:
         """One physics step (1 / PHYSICS_HZ of vehicle time): what came in, the motion, what goes out. The closed
