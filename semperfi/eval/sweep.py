@@ -36,16 +36,16 @@ import os
 import random
 import shutil
 import tomllib
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, wait
 from dataclasses import asdict, dataclass, fields
 from itertools import product
-from multiprocessing import get_context
 from pathlib import Path
 from typing import Callable, Iterator
 
 from .. import config
 from ..errors import BadInput
 from .grid import COLUMNS, Cell, run_cell
+from .pool import worker_pool
 from .xgen import GPS_SDR_SIM, ephemeris_day, gps_sdr_sim_path, one_line
 
 RESULTS_CSV = "results.csv"
@@ -270,8 +270,7 @@ def ray_available() -> bool:
 
 def _pool_runner(jobs: list[tuple[Cell, str]], nav_path: str, out_dir: Path, sets, workers: int
                  ) -> Iterator[tuple[Cell, str, dict | BaseException]]:
-    # spawned workers: a forked child would inherit the parent's numba and BLAS threads mid-flight
-    with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
+    with worker_pool(workers) as pool:
         pending = {pool.submit(_task, asdict(c), nav_path, str(out_dir / "cells" / i), sets): (c, i) for c, i in jobs}
         while pending:
             finished, _ = wait(pending, return_when=FIRST_COMPLETED)

@@ -1,0 +1,66 @@
+"""The grids' process pool (semperfi.eval.pool): a grid stopped from outside stops its workers and the programs they
+started, where a plain process pool's workers ran on for the rest of their cells."""
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+DEADLINE_S = 30.0
+
+PARENT = textwrap.dedent("""
+    import subprocess, sys, time
+    from pathlib import Path
+    from semperfi.eval.pool import worker_pool
+
+    def cell(out):   # a cell that starts a program of its own, as the grids' do (gps-sdr-sim, GNSS-SDR)
+        child = subprocess.Popen(["sleep", "300"])
+        Path(out).write_text(f"{child.pid}")
+        child.wait()
+
+    if __name__ == "__main__":
+        try:
+            with worker_pool(1) as pool:
+                pool.submit(cell, sys.argv[1]).result()
+        except KeyboardInterrupt:
+            print("stopped", file=sys.stderr)
+            sys.exit(130)
+""")
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (FileNotFoundError, IndexError):
+        return False
+    return state != "Z"   # a zombie no one reaped has stopped
+
+
+def _wait_for(what, deadline_s: float = DEADLINE_S) -> bool:
+    end = time.monotonic() + deadline_s
+    while time.monotonic() < end:
+        if what():
+            return True
+        time.sleep(0.05)
+    return False
+
+
+def test_a_grid_sent_sigterm_ends_its_workers_and_the_programs_they_started(tmp_path):
+    script, marker = tmp_path / "parent.py", tmp_path / "child.pid"
+    script.write_text(PARENT)
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    parent = subprocess.Popen([sys.executable, str(script), str(marker)], env=env, stderr=subprocess.PIPE, text=True)
+    try:
+        assert _wait_for(lambda: marker.is_file() and marker.read_text()), "the worker never started its program"
+        child = int(marker.read_text())
+        assert _alive(child)
+        parent.send_signal(signal.SIGTERM)
+        _, err = parent.communicate(timeout=DEADLINE_S)
+    finally:
+        if parent.poll() is None:
+            parent.kill()
+    assert parent.returncode == 130 and err.strip() == "stopped", err
+    assert _wait_for(lambda: not _alive(child)), f"the worker's program {child} outlived the grid"
