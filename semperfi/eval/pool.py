@@ -17,12 +17,12 @@ from contextlib import contextmanager
 from multiprocessing import get_context
 
 
-class Terminated(KeyboardInterrupt):
+class _Terminated(KeyboardInterrupt):
     """SIGTERM reached the pool's parent: stopped from outside, as by Ctrl-C (and handled where Ctrl-C is)."""
 
 
 def _on_sigterm(signum, frame):
-    raise Terminated("terminated")
+    raise _Terminated("terminated")
 
 
 def _end_groups(pool: ProcessPoolExecutor) -> None:
@@ -37,7 +37,7 @@ def _end_groups(pool: ProcessPoolExecutor) -> None:
 @contextmanager
 def worker_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
     """A ProcessPoolExecutor of spawned workers (a forked child would inherit the parent's numba and BLAS threads
-    mid-flight), each a process group's leader; left by an exception, Ctrl-C or SIGTERM (raised as Terminated in the
+    mid-flight), each a process group's leader; left by an exception, Ctrl-C or SIGTERM (raised as _Terminated in the
     main thread), every group is sent SIGTERM and the work not started is dropped."""
     main = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, _on_sigterm) if main else None
