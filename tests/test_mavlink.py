@@ -150,6 +150,42 @@ def test_fly_without_a_vehicle_is_one_error_line():
     assert result.returncode != 0 and result.stderr.strip().count("\n") == 0 and "HEARTBEAT" in result.stderr
 
 
+def test_a_vehicle_starved_of_the_cpu_stalls_rather_than_racing_to_catch_up(monkeypatch):
+    """A busy machine (the suite's other worker, a grid beside it) took the vehicle's thread away for a while: it had
+    then flown the lost vehicle time at once, seconds of it (x20) on setpoints its pilot, starved too, had not
+    updated, and the flight tests failed 2 runs in 5 under load. On a fake clock: after a 1 s stall the vehicle steps
+    once, then keeps the scaled pace again."""
+    from semperfi.sim import mavlink_vehicle
+    wall = [100.0]
+    paces: list[tuple[float, float]] = []   # (wall, vehicle time) at each step
+    v = MavlinkVehicle(_free_port(), time_scale=TIME_SCALE)
+    stop = threading.Event()
+
+    def step():
+        v._k += 1
+        v.t_s = v._k / mavlink_vehicle.PHYSICS_HZ
+        paces.append((wall[0], v.t_s))
+        if len(paces) == 10:
+            wall[0] += 1.0               # the thread starved for a second
+        if len(paces) == 40:
+            stop.set()
+
+    def sleep(s):
+        wall[0] += s
+
+    monkeypatch.setattr(v, "step", step)
+    monkeypatch.setattr(mavlink_vehicle.time, "monotonic", lambda: wall[0])
+    monkeypatch.setattr(mavlink_vehicle.time, "sleep", sleep)
+    try:
+        v.run(stop)
+    finally:
+        v.sock.close()
+    bursts = sum(1 for (w0, _), (w1, _) in zip(paces, paces[1:]) if w1 == w0)
+    assert bursts <= 1, f"{bursts} steps flown at once after the stall"
+    rate = np.diff([t for _, t in paces[12:]]) / np.diff([w for w, _ in paces[12:]])
+    assert np.allclose(rate, TIME_SCALE), rate      # the pace kept after it, the second lost not made up
+
+
 def test_the_vehicle_streams_only_what_it_is_asked_for(vehicle):
     v, port = vehicle
     peer = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=66, dialect="common")
