@@ -996,7 +996,7 @@ class SpoofGuard:
                 self.gave_up[prn] = f"{reason} after {stage + 1} SIC iterations (the bound)"
                 self._emit("cancellation_refused", t_s, prn=prn, reason=self.gave_up[prn])
                 if self.remove_given_up:
-                    self._remove(prn, target, first, stage + 1, t_s)
+                    self._remove(prn, target, first, t_s)
             else:
                 self.pending_verify[prn] = (t_s + self.d["verify_after_s"], target, stage + 1)
         self._swap_weaker_replicas(first, t_s)
@@ -1058,7 +1058,7 @@ class SpoofGuard:
             self.gave_up[prn] = (f"its legitimate twin lies {abs(twin[1]):.2f} chip under a spoofer {twin[0]:.1f} "
                                  f"dB stronger: its range would stay biased")
             self._emit("cancellation_refused", t_s, prn=prn, reason=self.gave_up[prn])
-            self._remove(prn, remainder, sample, self._stages(prn), t_s)
+            self._remove(prn, remainder, sample, t_s)
 
     def _at_twin_of(self, prn: int, sample: int) -> Peak | None:
         """Where a PRN's legitimate twin is at an absolute sample, seen from the track that holds it against the
@@ -1088,16 +1088,16 @@ class SpoofGuard:
             sample = self._cleaned - self._clean.size    # within every stage's history (the cleaned window's)
             remainder = self._at_twin_of(prn, sample)
             self._removals[prn] = self._removals.get(prn, 0) + 1
-            placed = remainder is not None and self.canceller.cancel(
-                remainder, sample, self._stages(prn), removal=True) is not None
+            placed = remainder is not None and self.canceller.remove(remainder, sample) is not None
             self._emit("removal_lost", t_s, prn=prn, restarted=placed,
                        code_phase_chips=None if remainder is None else round(remainder.code_phase_chips, 4))
 
-    def _remove(self, prn: int, remainder: Peak, sample: int, stage: int, t_s: float) -> None:
+    def _remove(self, prn: int, remainder: Peak, sample: int, t_s: float) -> None:
         """A PRN given up whose remainder still dominates where its spoofer was: that remainder (the legitimate twin
-        merged with what the stages left of the spoofer) is cancelled too, in one stage past the bound, so that a
-        receiver behind the plug-in filter does without the satellite rather than take a biased range from it."""
-        if self.canceller.cancel(remainder, sample, stage, removal=True) is None:
+        merged with what the stages left of the spoofer) is taken out too, so that a receiver behind the plug-in
+        filter does without the satellite rather than take a biased range from it (Canceller.remove: where the
+        removal goes, and which of the PRN's stages give way to it)."""
+        if self.canceller.remove(remainder, sample) is None:
             return
         self.removed.add(prn)
         self._removals[prn] = 1
