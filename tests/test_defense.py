@@ -1115,8 +1115,12 @@ def test_a_twin_is_taken_out_where_the_strongest_spoofers_track_holds_it_and_aga
         assert guard.canceller.removing(prn) == (n + 1 < MAX_REMOVALS), n
         if n + 1 >= MAX_REMOVALS:
             break
-    assert [e for e, kw in events] == ["removal_lost"] * (MAX_REMOVALS - 1)
-    assert all(kw["restarted"] for _, kw in events)
+    assert [e for e, kw in events] == ["removal_lost"] * (MAX_REMOVALS - 1) + ["removal_failed"]
+    assert all(kw["restarted"] for e, kw in events if e == "removal_lost")
+    # past the bound the PRN is no longer called removed: the output holds what is left of it, and the summary says so
+    assert guard.removed == set() and "could not hold" in guard.gave_up[prn]
+    guard._keep_removed(0.7)
+    assert [e for e, kw in events].count("removal_failed") == 1
     assert guard_module.MAX_REMOVALS == MAX_REMOVALS
 
 

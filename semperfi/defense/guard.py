@@ -1081,9 +1081,16 @@ class SpoofGuard:
 
     def _keep_removed(self, t_s: float) -> None:
         """A PRN taken out whose removal track lost what it followed (and ended) is taken out again, at its twin as
-        the tracks hold it now, up to MAX_REMOVALS times; its output would hold the satellite again otherwise."""
+        the tracks hold it now, up to MAX_REMOVALS times; its output would hold the satellite again otherwise. Past
+        that it is removed no more, and says so (`removal_failed`, the summary's gave_up): it was still listed as
+        removed while the output held it (GPS-SDR-SIM behind 1 MHz, flying, 500 m, +10 dB, before Canceller.remove)."""
         for prn in sorted(self.removed):
-            if self.canceller.removing(prn) or self._removals.get(prn, 0) >= MAX_REMOVALS:
+            if self.canceller.removing(prn):
+                continue
+            if self._removals.get(prn, 0) >= MAX_REMOVALS:
+                self.removed.discard(prn)
+                self.gave_up[prn] += "; its removal could not hold: what is left of it stays in the output"
+                self._emit("removal_failed", t_s, prn=prn, removals=self._removals[prn], reason=self.gave_up[prn])
                 continue
             sample = self._cleaned - self._clean.size    # within every stage's history (the cleaned window's)
             remainder = self._at_twin_of(prn, sample)
