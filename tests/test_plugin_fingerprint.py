@@ -152,3 +152,29 @@ def test_the_residual_profile_reads_what_clean_left_of_a_spoofer_at_its_lag_also
     assert abs(p.spoofer_coherent[at_zero]) == pytest.approx(10 ** (residue_db / 20), rel=0.05)
     assert abs(np.angle(p.spoofer_coherent[at_zero])) < 0.05
     assert np.argmax(p.rms) == at_zero
+
+
+def test_gnss_sdrs_score_counts_only_true_fixes_and_its_longest_gap_from_its_first_fix():
+    """10 Hz fixes from 35 s to the end of a 60 s recording: a 3 s hole at 40 s and 2 s of fixes 50 m off at
+    50 s. Every epoch with a fix counts for epochs_fixed; only the true ones for true_fixed; the longest gap is
+    the hole, the wrong stretch being shorter."""
+    from semperfi.eval import xgen
+    from semperfi.eval.crosscheck import GPS_UTC_LEAP_S
+    from semperfi.eval.gnss_sdr import Fix
+    from semperfi.eval.plugin import _gnss_sdr_score
+    case = xgen.Case(xgen.PLACES["boston"], 500.0, 6.0, date="2022/01/01,00:00:13", duration_s=60.0)
+    place = case.place
+    north_deg_per_m = 1.0 / 111_111.0
+    fixes = []
+    for k in range(350, 600):
+        t_s = k / 10.0
+        if 40.0 <= t_s < 43.0:
+            continue
+        off_m = 50.0 if 50.0 <= t_s < 52.0 else 0.0
+        sod = (13.0 + t_s - GPS_UTC_LEAP_S) % 86400.0
+        fixes.append(Fix("", sod, place.lat_deg + off_m * north_deg_per_m, place.lon_deg, place.height_m, 8, 1.0))
+    got = _gnss_sdr_score(fixes, case)
+    assert got["first_fix_s"] == 35.0 and got["fixes"] == len(fixes)
+    assert got["epochs_fixed"] == pytest.approx(220 / 250, abs=0.005)
+    assert got["true_fixed"] == pytest.approx(200 / 250, abs=0.005)
+    assert got["longest_gap_s"] == pytest.approx(3.0, abs=0.15)

@@ -178,10 +178,12 @@ def _gnss_sdr_score(fixes, case, last_s: float = 10.0, rate_hz: float = 10.0) ->
     """GNSS-SDR's fixes as xgen.score has ours: how many, the first (seconds into the recording: its GGA times are
     UTC, the case's GPS time), the horizontal error against the truth at each fix's time (the place, or the case's
     motion) over the last seconds and at most, and the share of its output epochs (rate_hz) from its first fix on
-    that carry one (RTKLIB writes none for an epoch its chi-square test rejects)."""
+    that carry one (RTKLIB writes none for an epoch its chi-square test rejects); and, from its first fix to the
+    recording's end, the share of those epochs with a true fix (within metrics.BAD_M) and the longest run without
+    one (seconds): a fix late by a gap is as useless to a drone as none."""
     from .crosscheck import GPS_UTC_LEAP_S
     from .gnss_sdr import fixes_ecef
-    from .metrics import position_errors
+    from .metrics import BAD_M, availability, position_errors
     if not fixes:
         return {"fixes": 0}
     _, clock = case.date.split(",")
@@ -190,9 +192,12 @@ def _gnss_sdr_score(fixes, case, last_s: float = 10.0, rate_hz: float = 10.0) ->
     err = position_errors(t_s, fixes_ecef(fixes), case.truth).horizontal_m
     last = t_s >= t_s[-1] - last_s
     epochs = max(1, int(round((case.duration_s - t_s[0]) * rate_hz)))
+    true_share, gap_s = availability(t_s, err <= BAD_M, float(t_s[0]), case.duration_s, rate_hz)
     return {"fixes": len(fixes), "first_fix_s": round(float(t_s[0]), 1),
             "last_mean_m": round(float(np.mean(err[last])), 2), "max_m": round(float(np.max(err)), 1),
-            "epochs_fixed": round(min(1.0, len(fixes) / epochs), 3)}
+            "epochs_fixed": round(min(1.0, len(fixes) / epochs), 3),
+            "true_fixed": round(true_share, 3) if np.isfinite(true_share) else None,
+            "longest_gap_s": round(gap_s, 1) if np.isfinite(gap_s) else None}
 
 
 @dataclass(frozen=True)
