@@ -9,6 +9,8 @@ import textwrap
 import time
 from pathlib import Path
 
+import pytest
+
 DEADLINE_S = 30.0
 
 PARENT = textwrap.dedent("""
@@ -16,15 +18,21 @@ PARENT = textwrap.dedent("""
     from pathlib import Path
     from semperfi.eval.pool import worker_pool
 
-    def cell(out):   # a cell that starts a program of its own, as the grids' do (gps-sdr-sim, GNSS-SDR)
-        child = subprocess.Popen(["sleep", "300"])
+    def cell(out, own_session):
+        # a cell that starts a program of its own, as the grids' do: in the worker's group (gps-sdr-sim), or in a
+        # session of its own that the cell stops on its way out (GNSS-SDR, run_gnss_sdr)
+        child = subprocess.Popen(["sleep", "300"], start_new_session=own_session)
         Path(out).write_text(f"{child.pid}")
-        child.wait()
+        try:
+            child.wait()
+        except BaseException:
+            child.kill()
+            raise
 
     if __name__ == "__main__":
         try:
             with worker_pool(1) as pool:
-                pool.submit(cell, sys.argv[1]).result()
+                pool.submit(cell, sys.argv[1], sys.argv[2] == "own").result()
         except KeyboardInterrupt:
             print("stopped", file=sys.stderr)
             sys.exit(130)
@@ -48,11 +56,15 @@ def _wait_for(what, deadline_s: float = DEADLINE_S) -> bool:
     return False
 
 
-def test_a_grid_sent_sigterm_ends_its_workers_and_the_programs_they_started(tmp_path):
+@pytest.mark.parametrize("session", ["worker's", "own"])
+def test_a_grid_sent_sigterm_ends_its_workers_and_the_programs_they_started(tmp_path, session):
+    """Also a program in a session of its own: its worker, killed outright, left it running without a parent
+    (GNSS-SDR went on with its file after a grid was stopped)."""
     script, marker = tmp_path / "parent.py", tmp_path / "child.pid"
     script.write_text(PARENT)
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
-    parent = subprocess.Popen([sys.executable, str(script), str(marker)], env=env, stderr=subprocess.PIPE, text=True)
+    parent = subprocess.Popen([sys.executable, str(script), str(marker), session], env=env, stderr=subprocess.PIPE,
+                              text=True)
     try:
         assert _wait_for(lambda: marker.is_file() and marker.read_text()), "the worker never started its program"
         child = int(marker.read_text())

@@ -25,6 +25,14 @@ def _on_sigterm(signum, frame):
     raise _Terminated("terminated")
 
 
+def _start_worker() -> None:
+    """A worker leads its own process group (the parent ends it whole), and SIGTERM unwinds its cell like Ctrl-C: a
+    program that runs in a session of its own (GNSS-SDR: run_gnss_sdr stops its group on the way out) is not in the
+    group, and a worker killed outright left it running without a parent."""
+    os.setpgrp()
+    signal.signal(signal.SIGTERM, _on_sigterm)
+
+
 def _end_groups(pool: ProcessPoolExecutor) -> None:
     # the executor keeps its workers' processes by pid and offers no public way to stop them
     for pid in list(getattr(pool, "_processes", None) or {}):
@@ -41,7 +49,7 @@ def worker_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
     main thread), every group is sent SIGTERM and the work not started is dropped."""
     main = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, _on_sigterm) if main else None
-    pool = ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=os.setpgrp)
+    pool = ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_start_worker)
     try:
         yield pool
     except BaseException:
