@@ -29,10 +29,15 @@ PARENT = textwrap.dedent("""
             child.kill()
             raise
 
+    def next_cell(out):   # queued behind the first: a stopped grid starts no more cells
+        Path(out).write_text("ran")
+
     if __name__ == "__main__":
         try:
             with worker_pool(1) as pool:
-                pool.submit(cell, sys.argv[1], sys.argv[2] == "own").result()
+                first = pool.submit(cell, sys.argv[1], sys.argv[2] == "own")
+                pool.submit(next_cell, sys.argv[1] + ".next")
+                first.result()
         except KeyboardInterrupt:
             print("stopped", file=sys.stderr)
             sys.exit(130)
@@ -76,3 +81,5 @@ def test_a_grid_sent_sigterm_ends_its_workers_and_the_programs_they_started(tmp_
             parent.kill()
     assert parent.returncode == 130 and err.strip() == "stopped", err
     assert _wait_for(lambda: not _alive(child)), f"the worker's program {child} outlived the grid"
+    time.sleep(1.0)   # (a worker that outlived its cell would have run the next one by now)
+    assert not Path(f"{marker}.next").exists(), "the stopped grid's worker went on to its next cell"
