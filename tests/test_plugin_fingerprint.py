@@ -178,3 +178,22 @@ def test_gnss_sdrs_score_counts_only_true_fixes_and_its_longest_gap_from_its_fir
     assert got["epochs_fixed"] == pytest.approx(220 / 250, abs=0.005)
     assert got["true_fixed"] == pytest.approx(200 / 250, abs=0.005)
     assert got["longest_gap_s"] == pytest.approx(3.0, abs=0.15)
+
+
+def test_a_cell_whose_cleaning_stopped_is_an_error_not_a_receivers_result(monkeypatch, tmp_path):
+    """`clean` that stopped on an internal error (a full disk, 4.7 s in) wrote a short file: the fingerprint says so
+    and the grid's row is an error, where GNSS-SDR's no-fix on it had counted as the filter's failure."""
+    import semperfi.defense as defense
+    from semperfi.defense.clean import CleanSummary
+    from semperfi.eval import plugin, xgen
+    monkeypatch.setattr(xgen, "prepare", lambda case, nav, work: tmp_path / f"{case.tag}.bin")
+    monkeypatch.setattr(defense, "clean_file", lambda *a, **k: CleanSummary(
+        tmp_path / "c.bin", 4.7, 1.0, (7,), (7,), (7,), {}, {}, 0.0,
+        internal_error="OSError: [Errno 28] No space left on device"))
+    case = xgen.Case(xgen.PLACES["boston"], 500.0, 15.0, duration_s=60.0)
+    with pytest.raises(RuntimeError, match=r"clean stopped at 4\.7 s: OSError: \[Errno 28\] No space left"):
+        plugin.fingerprint(case, "nav", tmp_path, gnss_sdr=False)
+    grid = load_script("plugin-grid")
+    monkeypatch.setattr(grid, "fingerprint", plugin.fingerprint)
+    cell = grid.run_cell(case, "nav", str(tmp_path))
+    assert cell["error"].startswith("RuntimeError: clean stopped at 4.7 s") and grid.verdict(cell) == "error"

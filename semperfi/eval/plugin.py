@@ -121,6 +121,9 @@ def fingerprint(case, nav_path: str | Path, work: Path, gnss_sdr: bool = True, f
     cleaned = work / f"{case.tag}-clean.bin"
     summary = clean_file(data, cleaned, format_by_name(case.item_type), case.fs_hz, case.if_hz,
                          load_config(None, ['defense.mode="full"']))
+    stopped = summary.internal_error or summary.input_error
+    if stopped:   # a cleaned file cut short is no receiver's result (a full disk passed for GNSS-SDR's failure)
+        raise RuntimeError(f"clean stopped at {summary.duration_s:.1f} s: {stopped}")
     week, sow = case.truth.start_gps
     t0_s = week * 604800.0 + sow + from_s
     out = {"case": case.tag, "cleaned": str(cleaned), "cancelled": list(summary.cancelled), "gave_up": summary.gave_up,
