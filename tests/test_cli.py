@@ -167,8 +167,9 @@ def test_a_ctrl_c_that_lands_in_a_finalizer_still_stops_the_command_and_other_fi
     import signal
     previous = sys.unraisablehook
     sys.unraisablehook = _unraisable
-    # Python's own Ctrl-C handler, as a command starts with: the re-raise goes through it, and a test file run
-    # before this one in the same worker had left SIGINT to another (the full suite, twice; never alone)
+    # Python's own Ctrl-C handler, as a command starts with: the re-raise goes through it, and in the full suite a
+    # test file run before this one in the same worker can leave SIGINT to another (failed there three times, never
+    # alone; a handler set to SIG_IGN beforehand fails it the same way)
     previous_sigint = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         Broken()

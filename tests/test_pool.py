@@ -14,7 +14,7 @@ import pytest
 DEADLINE_S = 30.0
 
 PARENT = textwrap.dedent("""
-    import subprocess, sys, time
+    import os, subprocess, sys, time
     from pathlib import Path
     from semperfi.eval.pool import worker_pool
 
@@ -22,7 +22,7 @@ PARENT = textwrap.dedent("""
         # a cell that starts a program of its own, as the grids' do: in the worker's group (gps-sdr-sim), or in a
         # session of its own that the cell stops on its way out (GNSS-SDR, run_gnss_sdr)
         child = subprocess.Popen(["sleep", "300"], start_new_session=own_session)
-        Path(out).write_text(f"{child.pid}")
+        Path(out).write_text(f"{child.pid} {os.getpid()}")
         try:
             child.wait()
         except BaseException:
@@ -72,7 +72,7 @@ def test_a_grid_sent_sigterm_ends_its_workers_and_the_programs_they_started(tmp_
                               text=True)
     try:
         assert _wait_for(lambda: marker.is_file() and marker.read_text()), "the worker never started its program"
-        child = int(marker.read_text())
+        child, worker = (int(pid) for pid in marker.read_text().split())
         assert _alive(child)
         parent.send_signal(signal.SIGTERM)
         _, err = parent.communicate(timeout=DEADLINE_S)
@@ -81,5 +81,5 @@ def test_a_grid_sent_sigterm_ends_its_workers_and_the_programs_they_started(tmp_
             parent.kill()
     assert parent.returncode == 130 and err.strip() == "stopped", err
     assert _wait_for(lambda: not _alive(child)), f"the worker's program {child} outlived the grid"
-    time.sleep(1.0)   # (a worker that outlived its cell would have run the next one by now)
+    assert _wait_for(lambda: not _alive(worker)), f"the grid's worker {worker} outlived it"
     assert not Path(f"{marker}.next").exists(), "the stopped grid's worker went on to its next cell"

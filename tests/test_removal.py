@@ -75,7 +75,6 @@ def test_a_removed_prn_leaves_nothing_to_track_behind_a_front_end_and_the_others
     assert abs(other[1] - other[0]) < 0.3, other
 
 
-
 def test_a_removal_takes_the_place_of_the_stages_that_chased_the_remainder():
     """The SIC chased the remainder of a PRN before giving it up: a second stage's lone track on the twin, half
     taking it out. Its removal (Canceller.remove) drops that lone track and goes right after the first stage, on
