@@ -197,3 +197,30 @@ def test_a_cell_whose_cleaning_stopped_is_an_error_not_a_receivers_result(monkey
     monkeypatch.setattr(grid, "fingerprint", plugin.fingerprint)
     cell = grid.run_cell(case, "nav", str(tmp_path))
     assert cell["error"].startswith("RuntimeError: clean stopped at 4.7 s") and grid.verdict(cell) == "error"
+
+
+def test_a_cell_the_disk_cannot_hold_is_an_error_before_anything_is_written(monkeypatch, tmp_path):
+    """The disk's free space against what the cell's files take (two scenes 4x faster behind a front end, three
+    recordings), times the cells run beside it: too little is the row's error, and nothing is rendered."""
+    from collections import namedtuple
+
+    from semperfi.eval import xgen
+    case = xgen.Case(xgen.PLACES["boston"], 500.0, 15.0, duration_s=60.0, fs_hz=2.6e6, front_end_hz=1e6)
+    # complex int16 (4 bytes a sample): scenes at 10.4 MSa/s, recordings at 2.6 MSa/s
+    assert xgen.disk_bytes(case) == int(2 * 10.4e6 * 60 * 4 + 3 * 2.6e6 * 60 * 4)
+    grid = load_script("plugin-grid")
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(grid.shutil, "disk_usage", lambda path: usage(100e9, 96e9, 4e9))
+    monkeypatch.setattr(grid, "fingerprint", lambda *a, **k: pytest.fail("a cell the disk cannot hold was run"))
+    cell = grid.run_cell(case, "nav", str(tmp_path), cells_at_once=2)
+    assert cell["error"] == "OSError: 4.0 GB free on the disk, 13.7 GB wanted by 2 cell(s) at once", cell
+    assert grid.verdict(cell) == "error"
+
+
+def test_a_rerun_runs_the_wanted_cells_without_a_row_and_those_whose_row_is_an_error(tmp_path):
+    grid = load_script("plugin-grid")
+    cells = grid.cells(tmp_path)
+    done = {cells[0].tag: {"case": cells[0].tag, "error": "OSError: 1.0 GB free"},
+            cells[1].tag: {"case": cells[1].tag, "fixes": {}}}
+    assert [c.tag for c in grid.cells_to_run(cells, done, {0, 1, 2})] == [cells[0].tag, cells[2].tag]
+    assert len(grid.cells_to_run(cells, done, None)) == len(cells) - 1

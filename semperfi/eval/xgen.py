@@ -511,6 +511,15 @@ def scenes(case: Case, nav_path: str | Path, work: Path) -> tuple[Path, Path | N
     return legit, spoof
 
 
+def disk_bytes(case: Case) -> int:
+    """What a case's files take on disk at most: its two scenes at the rate they are rendered, and three recordings
+    in its own format (the mix, the scene without the attacker, a cleaned copy)."""
+    fast = rendered(case)
+    scene = fast.fs_hz * fast.duration_s * format_by_name(fast.item_type).bytes_per_sample
+    recording = case.fs_hz * case.duration_s * format_by_name(case.item_type).bytes_per_sample
+    return int(2 * scene + 3 * recording)
+
+
 def _trip(motion: str) -> str:
     """A motion file's part of a scene's name: its content's digest (a longer trip is another file, another name)."""
     return f"-{hashlib.sha256(Path(motion).read_bytes()).hexdigest()[:16]}" if motion else ""
