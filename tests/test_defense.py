@@ -725,6 +725,38 @@ def test_a_prn_given_up_by_the_plug_in_filter_is_taken_out_whole(tmp_path, monke
     assert (at_twin < 3 * noise) if remove else (at_twin > 20 * noise), (at_twin, noise)
 
 
+@pytest.mark.parametrize("remove", [True, False], ids=["taken-out", "left"])
+def test_a_spoofer_no_stage_may_take_on_is_taken_out_by_the_plug_in_filter(tmp_path, monkeypatch, remove):
+    """Four satellites spoofed 6 dB stronger, the canceller allowed two tracks at once (defense.max_tracks): the
+    spoofers alarmed past the bound are refused before any stage takes them on. The plug-in filter takes each of
+    them out as one path (`prn_removed`), so that no spoofer stays whole in the output for a receiver behind it to
+    lock onto; without the removal (the defended receiver, which leaves such a PRN out of its fixes itself) the
+    spoofer stands in the cleaned samples as in the recording."""
+    from semperfi.defense import guard as guard_module
+    from semperfi.defense.clean import clean_file
+    from semperfi.iq import read_sigmf_meta
+    rows = simulate(tmp_path / "s.bin", "constellation.max_satellites=4", "attacker.enabled=true",
+                    "attacker.power_advantage_db=6.0", duration=5.0, fmt="gr_complex")
+    if not remove:
+        monkeypatch.setattr(guard_module.SpoofGuard, "_remove", lambda *args: None)
+    cfg = load_config(None, ['defense.verify_after_s=0.5', 'defense.max_tracks=2'])
+    summary = clean_file(tmp_path / "s.bin", tmp_path / "c.bin", "gr_complex", FS, 0.0, cfg)
+    refused = sorted(p for p, why in summary.gave_up.items() if why == "too many spoofed signals at once")
+    assert len(refused) >= 1, summary.gave_up
+    assert summary.removed == (tuple(refused) if remove else ()), (summary.removed, summary.gave_up)
+    assert read_sigmf_meta(tmp_path / "c.sigmf-meta").extra.get("removed_prns") == (refused if remove else [])
+    x = open_iq(tmp_path / "c.bin").read(int(4.5 * FS), int(0.04 * FS))
+    for prn in refused:
+        spoofer = min((r for r in rows if r["prn"] == prn and r["source"] == "spoof"),
+                      key=lambda r: abs(r["t_rx_s"] - 4.5))
+        at_spoofer = _power_at(x, FS, prn, spoofer["code_phase_chips"], spoofer["doppler_hz"])
+        noise = _power_at(x, FS, prn, (spoofer["code_phase_chips"] + 500.0) % 1023, spoofer["doppler_hz"])
+        print(f"PRN {prn}: spoofer / noise after cleaning: {at_spoofer / noise:.1f}")
+        # a spoofer 6 dB over a 45 dB-Hz satellite stands ~21 dB over 1 ms of noise (x125); taken out, within the
+        # noise's own spread of 20 looks
+        assert (at_spoofer < 3 * noise) if remove else (at_spoofer > 20 * noise), (prn, at_spoofer, noise)
+
+
 @pytest.mark.parametrize("delay_chips", [0.4, 1.0])
 def test_the_plug_in_filter_takes_out_a_twin_too_close_under_a_much_stronger_spoofer(tmp_path, delay_chips,
                                                                                    monkeypatch):

@@ -27,7 +27,8 @@ class Defense:
     adversarial: str = key("auto", doc="auto | stronger | later | prn:LIST (the identifier decides from a "
                                        "maneuver); checked by the policy")
     max_iterations: int = key(3, 1, 16, doc="SIC stages per PRN")
-    max_tracks: int = key(24, 1, 256, doc="spoofed signals cancelled at once, all PRNs together")
+    max_tracks: int = key(24, 1, 256, doc="spoofed signals cancelled at once, all PRNs together (`clean` takes "
+                                          "those past it out, one path each)")
     verify_after_s: float = key(1.0, 0.0, 3600.0, unit="s",
                                 doc="re-acquisition on the cleaned signal this long after a cancellation starts")
     # the pseudorange rectifier times a retrieved legitimate signal by its spoofer's navigation message (auto: when

@@ -77,6 +77,8 @@ BEAT_STALE_S = 1.0     # a time push's beat unseen on a PRN this long: its separ
 COMMON_WAIT_S = 1.0    # a beat on a few PRNs alike, no alarm yet: how long the others have to show it too
 MAX_SWAPS = 2          # a PRN whose cancelled peak is found legitimate this often is given up
 MAX_REMOVALS = 3       # a PRN taken out is taken out again this often at most, each time its removal ends
+REMOVED_REMAINDER = "given up: what is left of it is cancelled too, the satellite left out of the output"
+REMOVED_SPOOFER = "given up before any stage took it on: its spoofer is taken out as one path (a twin apart stays)"
 # A cancellation that assumed the stronger of two peaks the attacker's whose settled joint track finds its twin this
 # much stronger than what its replica follows has its replica on the weaker signal: a close pair whose rounded peaks
 # merge, the twin hint on the wrong side, the loops drawn onto the other path (GPS-SDR-SIM behind 1 MHz, static, 500 m,
@@ -889,11 +891,10 @@ class SpoofGuard:
         rounding of its chips looks like a second path to the two-path fit (Canceller.cancel's defer_twin)."""
         if choice is None:
             return
-        if sum(len(s.tracks) for s in self.canceller.stages) >= self.d["max_tracks"]:
-            self.gave_up[prn] = "too many spoofed signals at once"
-            self._emit("cancellation_refused", t_s, prn=prn, reason=self.gave_up[prn])
-            return
         x, peak_sample = self._looked
+        if sum(len(s.tracks) for s in self.canceller.stages) >= self.d["max_tracks"]:
+            self._refuse(prn, "too many spoofed signals at once", choice.adversarial, peak_sample, t_s, REMOVED_SPOOFER)
+            return
         peak = refine_peak(x[:self.window // 4], self.fs_hz, self.if_hz, choice.adversarial)
         if choice.legitimate is not None and chips_apart(peak.code_phase_chips, choice.legitimate.code_phase_chips) < \
                 chips_apart(choice.adversarial.code_phase_chips, choice.legitimate.code_phase_chips) / 2:
@@ -907,8 +908,7 @@ class SpoofGuard:
             legit = legit if hidden is None else hidden
         stage = self._stages(prn)
         if self.canceller.cancel(peak, peak_sample, stage, legit, defer_twin=implausible) is None:
-            self.gave_up[prn] = f"still spoofed after {stage} SIC iterations"
-            self._emit("cancellation_refused", t_s, prn=prn, reason=self.gave_up[prn])
+            self._refuse(prn, f"still spoofed after {stage} SIC iterations", peak, peak_sample, t_s, REMOVED_SPOOFER)
             return
         self.cancel_started.setdefault(prn, t_s)
         if implausible:
@@ -929,6 +929,17 @@ class SpoofGuard:
                    **({} if hidden is None else {"twin_found_by": "two_path"}))
         if self.on_cancel is not None:
             self.on_cancel(prn, peak, peak_sample)
+
+    def _refuse(self, prn: int, reason: str, dominant: Peak, sample: int, t_s: float,
+                removed_as: str = REMOVED_REMAINDER) -> None:
+        """A PRN whose spoofer no stage may cancel (the bound on stages or on tracks) is given up; the plug-in filter
+        takes out what still dominates it, so that a receiver behind it locks onto neither that nor an attacker's
+        signal left whole (refused before any stage took it on). A removal is one track past max_tracks, at most one
+        per PRN at a time: a spoofer left whole is the harm max_tracks must not buy."""
+        self.gave_up[prn] = reason
+        self._emit("cancellation_refused", t_s, prn=prn, reason=reason)
+        if self.remove_given_up:
+            self._remove(prn, dominant, sample, t_s, removed_as)
 
     def _stages(self, prn: int) -> int:
         """How many SIC stages cancel a PRN (the index of its next one)."""
@@ -993,10 +1004,7 @@ class SpoofGuard:
             if target is None:
                 self.verified.add(prn)
             elif self.canceller.cancel(target, first, stage + 1) is None:
-                self.gave_up[prn] = f"{reason} after {stage + 1} SIC iterations (the bound)"
-                self._emit("cancellation_refused", t_s, prn=prn, reason=self.gave_up[prn])
-                if self.remove_given_up:
-                    self._remove(prn, target, first, t_s)
+                self._refuse(prn, f"{reason} after {stage + 1} SIC iterations (the bound)", target, first, t_s)
             else:
                 self.pending_verify[prn] = (t_s + self.d["verify_after_s"], target, stage + 1)
         self._swap_weaker_replicas(first, t_s)
@@ -1099,7 +1107,8 @@ class SpoofGuard:
             self._emit("removal_lost", t_s, prn=prn, restarted=placed,
                        code_phase_chips=None if remainder is None else round(remainder.code_phase_chips, 4))
 
-    def _remove(self, prn: int, remainder: Peak, sample: int, t_s: float) -> None:
+    def _remove(self, prn: int, remainder: Peak, sample: int, t_s: float,
+                reason: str = REMOVED_REMAINDER) -> None:
         """A PRN given up whose remainder still dominates where its spoofer was: that remainder (the legitimate twin
         merged with what the stages left of the spoofer) is taken out too, so that a receiver behind the plug-in
         filter does without the satellite rather than take a biased range from it (Canceller.remove: where the
@@ -1108,8 +1117,7 @@ class SpoofGuard:
             return
         self.removed.add(prn)
         self._removals[prn] = 1
-        self._emit("prn_removed", t_s, prn=prn, code_phase_chips=round(remainder.code_phase_chips, 4),
-                   reason="given up: what is left of it is cancelled too, the satellite left out of the output")
+        self._emit("prn_removed", t_s, prn=prn, code_phase_chips=round(remainder.code_phase_chips, 4), reason=reason)
 
     def _left_merged(self, prn: int, t_s: float) -> None:
         """A cancellation on power alone left no signal at all: the legitimate one went with the attacker's, aligned
