@@ -717,9 +717,7 @@ def test_a_prn_given_up_by_the_plug_in_filter_is_taken_out_whole(tmp_path, monke
     assert read_sigmf_meta(tmp_path / "c.sigmf-meta").extra.get("removed_prns") == ([8] if remove else [])
     # the last second: the twin's power at its true code phase against the noise's, in the cleaned samples
     x = open_iq(tmp_path / "c.bin").read(int(4.8 * FS), int(0.04 * FS))
-    twin = min((r for r in rows if r["prn"] == 8 and r["source"] == "legit"), key=lambda r: abs(r["t_rx_s"] - 4.8))
-    at_twin = _power_at(x, FS, 8, twin["code_phase_chips"], twin["doppler_hz"])
-    noise = _power_at(x, FS, 8, (twin["code_phase_chips"] + 500.0) % 1023, twin["doppler_hz"])
+    at_twin, noise = _at_and_noise(x, _nearest(rows, 8, "legit", 4.8))
     print(f"twin / noise after cleaning: {at_twin / noise:.1f}")
     # a 45 dB-Hz twin stands ~20 dB over 1 ms of noise (x100); taken out, within the noise's own spread of 20 looks
     assert (at_twin < 3 * noise) if remove else (at_twin > 20 * noise), (at_twin, noise)
@@ -747,10 +745,7 @@ def test_a_spoofer_no_stage_may_take_on_is_taken_out_by_the_plug_in_filter(tmp_p
     assert read_sigmf_meta(tmp_path / "c.sigmf-meta").extra.get("removed_prns") == (refused if remove else [])
     x = open_iq(tmp_path / "c.bin").read(int(4.5 * FS), int(0.04 * FS))
     for prn in refused:
-        spoofer = min((r for r in rows if r["prn"] == prn and r["source"] == "spoof"),
-                      key=lambda r: abs(r["t_rx_s"] - 4.5))
-        at_spoofer = _power_at(x, FS, prn, spoofer["code_phase_chips"], spoofer["doppler_hz"])
-        noise = _power_at(x, FS, prn, (spoofer["code_phase_chips"] + 500.0) % 1023, spoofer["doppler_hz"])
+        at_spoofer, noise = _at_and_noise(x, _nearest(rows, prn, "spoof", 4.5))
         print(f"PRN {prn}: spoofer / noise after cleaning: {at_spoofer / noise:.1f}")
         # a spoofer 6 dB over a 45 dB-Hz satellite stands ~21 dB over 1 ms of noise (x125); taken out, within the
         # noise's own spread of 20 looks
@@ -785,15 +780,10 @@ def test_the_plug_in_filter_takes_out_a_twin_too_close_under_a_much_stronger_spo
     assert summary.removed == (tuple(legit) if close else ()), (summary.removed, summary.gave_up)
     x = open_iq(tmp_path / "c.bin").read(int(7.3 * FS), int(0.04 * FS))
     for prn in legit:
-        twin = min((r for r in rows if r["prn"] == prn and r["source"] == "legit"),
-                   key=lambda r: abs(r["t_rx_s"] - 7.3))
-        at_twin = _power_at(x, FS, prn, twin["code_phase_chips"], twin["doppler_hz"])
-        noise = _power_at(x, FS, prn, (twin["code_phase_chips"] + 500.0) % 1023, twin["doppler_hz"])
+        at_twin, noise = _at_and_noise(x, _nearest(rows, prn, "legit", 7.3))
         # a 50 dB-Hz twin stands ~25 dB over 1 ms of noise (x300); taken out, within the noise's spread of 20 looks
         assert (at_twin < 3 * noise) if close else (at_twin > 30 * noise), (prn, at_twin, noise)
-        spoofer = min((r for r in rows if r["prn"] == prn and r["source"] != "legit"),
-                      key=lambda r: abs(r["t_rx_s"] - 7.3))
-        at_spoofer = _power_at(x, FS, prn, spoofer["code_phase_chips"], spoofer["doppler_hz"])
+        at_spoofer, _ = _at_and_noise(x, _nearest(rows, prn, "spoof", 7.3))
         print(f"PRN {prn}: twin / noise {at_twin / noise:.1f}, spoofer / noise {at_spoofer / noise:.1f}")
         if close:   # nothing left where the spoofer was either: a residual a receiver could track would hand it the
             # spoofer's range (GPS-SDR-SIM, +15 dB, 500 m: 35.5 dB-Hz left of one PRN, tracked 152 m off)
@@ -823,21 +813,29 @@ def test_a_spoofer_on_from_the_first_sample_leaves_the_plug_in_filters_first_sam
     assert late and set(late) <= set(replayed[0]["prns"]), (late, replayed)   # the case this test is for
     spoofed = sorted({int(r["prn"]) for r in rows if r["source"] == "spoof"})
     assert len(replayed[0]["prns"]) >= 4 and set(replayed[0]["prns"]) <= set(spoofed), (replayed, spoofed)
-
-    def nearest(prn, source, t):
-        return min((r for r in rows if r["prn"] == prn and r["source"] == source), key=lambda r: abs(r["t_rx_s"] - t))
     for t in (0.0, 0.1, 0.2, 2.0):
         x, x_raw = reader.read(int(t * FS), int(0.02 * FS)), raw.read(int(t * FS), int(0.02 * FS))
         for prn in replayed[0]["prns"]:
-            spoofer, twin = nearest(prn, "spoof", t), nearest(prn, "legit", t)
-            at_spoofer = _power_at(x, FS, prn, spoofer["code_phase_chips"], spoofer["doppler_hz"])
-            noise = _power_at(x, FS, prn, (spoofer["code_phase_chips"] + 500.0) % 1023, spoofer["doppler_hz"])
+            spoofer, twin = _nearest(rows, prn, "spoof", t), _nearest(rows, prn, "legit", t)
+            at_spoofer, noise = _at_and_noise(x, spoofer)
             if chips_apart(spoofer["code_phase_chips"], twin["code_phase_chips"]) > 1.2:
                 # a 55 dB-Hz spoofer stands ~30 dB over 1 ms of noise (x1000); gone, within the spread of 20 looks
                 assert at_spoofer < 3 * noise, (t, prn, at_spoofer / noise)
             else:
                 before = _power_at(x_raw, FS, prn, spoofer["code_phase_chips"], spoofer["doppler_hz"])
                 assert at_spoofer < before / 10, (t, prn, at_spoofer / noise, before / noise)
+
+
+def _nearest(rows, prn, source, t_s):
+    """The truth row of one PRN's signal ("legit" or "spoof") nearest to a time."""
+    return min((r for r in rows if r["prn"] == prn and r["source"] == source), key=lambda r: abs(r["t_rx_s"] - t_s))
+
+
+def _at_and_noise(x, row):
+    """The power of a truth row's signal in x (baseband, at FS), and of the noise: the same correlations 500 chips
+    away from it."""
+    prn, chips, doppler_hz = int(row["prn"]), row["code_phase_chips"], row["doppler_hz"]
+    return _power_at(x, FS, prn, chips, doppler_hz), _power_at(x, FS, prn, (chips + 500.0) % 1023, doppler_hz)
 
 
 def _power_at(x, fs_hz, prn, code_phase_chips, freq_hz, ms=20):
