@@ -112,6 +112,12 @@ def _events(out):
     return [json.loads(line) for line in open(out / "events.jsonl")]
 
 
+def _said(stderr: str) -> list[str]:
+    """A run's lines on stderr other than its warnings: a live input is told it lags when the machine is loaded
+    (`input_lagging`, seen twice beside two grids), which is right, and not the one line an input's end is said in."""
+    return [line for line in stderr.strip().splitlines() if not line.startswith("warning at t = ")]
+
+
 def test_standard_input_gives_the_files_fixes_bit_for_bit(assisted):
     d, nav = assisted
     from_file = _run([str(d / "a.bin"), "--nav", str(nav), "--out", str(d / "file")])
@@ -148,7 +154,8 @@ def test_a_stream_lost_mid_run_keeps_its_fixes_and_fails_with_one_line(assisted)
     result = _run([f"rtl_tcp://127.0.0.1:{port}", "--fs", str(FS), "--nav", str(nav), "--out", str(d / "lost")])
     thread.join(10)
     assert result.returncode != 0
-    assert result.stderr.strip().count("\n") == 0 and "closed" in result.stderr, result.stderr
+    said = _said(result.stderr)
+    assert len(said) == 1 and "closed" in said[0], result.stderr
     fixes = read_fixes(d / "lost")
     assert fixes and float(fixes[-1]["t_rx_s"]) < cut_s
     lost = [e for e in _events(d / "lost") if e["event"] == "input_lost"]
@@ -173,7 +180,8 @@ def test_a_stalled_standard_input_is_lost_with_one_line_not_a_hang(assisted):
             proc.stdin.close()
     err = (d / "stalled.err").read_text()
     assert proc.returncode not in (0, None)
-    assert err.strip().count("\n") == 0 and "stalled" in err, err
+    said = _said(err)
+    assert len(said) == 1 and "stalled" in said[0], err
     fixes = read_fixes(d / "stalled")
     assert fixes and 15.0 < float(fixes[-1]["t_rx_s"]) < 16.0
     lost = [e for e in _events(d / "stalled") if e["event"] == "input_lost"]
@@ -235,7 +243,8 @@ def test_an_interrupted_run_keeps_its_outputs_and_exits_130(assisted):
             except OSError:
                 pass
     err = (d / "int.err").read_text()
-    assert proc.returncode == 130 and err.strip().count("\n") == 0 and "interrupted" in err, (proc.returncode, err)
+    said = _said(err)
+    assert proc.returncode == 130 and len(said) == 1 and "interrupted" in said[0], (proc.returncode, err)
     assert [e for e in _events(d / "interrupted") if e["event"] == "interrupted"]
 
 
