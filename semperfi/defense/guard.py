@@ -1063,10 +1063,8 @@ class SpoofGuard:
             remainder = self._at_twin_of(prn, sample)
             if remainder is None:
                 continue
-            self.gave_up[prn] = (f"its legitimate twin lies {abs(twin[1]):.2f} chip under a spoofer {twin[0]:.1f} "
-                                 f"dB stronger: its range would stay biased")
-            self._emit("cancellation_refused", t_s, prn=prn, reason=self.gave_up[prn])
-            self._remove(prn, remainder, sample, t_s)
+            self._refuse(prn, f"its legitimate twin lies {abs(twin[1]):.2f} chip under a spoofer {twin[0]:.1f} dB "
+                              "stronger: its range would stay biased", remainder, sample, t_s)
 
     def _at_twin_of(self, prn: int, sample: int) -> Peak | None:
         """Where a PRN's legitimate twin is at an absolute sample, seen from the track that holds it against the
