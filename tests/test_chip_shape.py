@@ -10,12 +10,12 @@ from semperfi.defense.canceller import (Canceller, CancellerConfig, code_overlap
 from semperfi.defense.chip_shape import (LAG_ZERO, LAGS_CHIPS, RECTANGULAR, TAPS_CHIPS, ChipShape, ChipShapeMeter,
                                          _ShapedModel, fit_gains, fit_on_samples, knot_bank, knot_values,
                                          overlap_matrix, placed_twin, shaped_bank)
-from semperfi.defense.twopath import delay_profile, two_path_test
+from semperfi.defense.twopath import two_path_test
 from semperfi.defense.twopath_track import (bank_lags, correlator_bank, correlator_bank_reference, fit_two_paths)
 from semperfi.gps import CA_CHIP_RATE_HZ, L1_HZ, SPEED_OF_LIGHT_M_S, ca_code
 from semperfi.receiver.acquisition import DopplerGrid, acquire
 from semperfi.receiver.correlator import code_bank
-from signals import behind_front_end, cancelling_pairs
+from signals import behind_front_end, cancelling_pairs, early_late_balance_chips
 
 # a lowpass's rounding of the chips, roughly a 1.2 MHz front end's (the knots' gains: any will do for the kernels)
 GAUSSIAN = np.exp(-0.5 * (TAPS_CHIPS / 0.3) ** 2)
@@ -391,23 +391,6 @@ def test_the_fitted_chips_are_as_close_to_the_filtered_ones_as_the_knots_fitted_
     assert sampled < -29.0
 
 
-def dll_balance_chips(x: np.ndarray, fs: float, prn: int, code_phase_chips: float, doppler_hz: float,
-                      half_spacing_chips: float, from_s: float) -> float:
-    """Where a non-coherent early-late loop balances on x (chips from code_phase_chips): the 1 ms correlations'
-    magnitudes, averaged from from_s on, on a 0.01-chip grid, interpolated."""
-    k = int(round(fs * 1e-3))
-    first = int(from_s * fs) // k * k
-    blocks = (x.size - first) // k - 1
-    lags = np.round(np.arange(-1.2, 1.2001, 0.01), 4)
-    start = (code_phase_chips + first / fs * CA_CHIP_RATE_HZ * (1 + doppler_hz / L1_HZ)) % 1023
-    y, _, _ = delay_profile(x[first:].astype(np.complex128), fs, prn, start, doppler_hz, 0.0, lags, blocks)
-    mag = np.mean(np.abs(y), axis=1)
-    taus = np.arange(-0.9, 0.3, 0.001)
-    balance = np.interp(taus + half_spacing_chips, lags, mag) - np.interp(taus - half_spacing_chips, lags, mag)
-    i = int(np.argmin(np.abs(balance)))
-    return float(taus[i])
-
-
 def test_a_close_twin_behind_a_front_end_keeps_its_range_when_the_shape_is_measured_on_spoofers_without_one():
     """Behind 1 MHz at 2.6 MSa/s, two +6 dB spoofers: PRN 8's twin 0.3 chip off, PRN 3's 2.7 chips off. The shape is
     measured on PRN 3 alone (SHAPE_APART_CHIPS): fitted on both, the close twin bent it and the joint track put the
@@ -422,9 +405,11 @@ def test_a_close_twin_behind_a_front_end_keeps_its_range_when_the_shape_is_measu
     step = int(0.05 * fs)
     y = np.concatenate([c.push(x[i:i + step]) for i in range(0, x.size, step)] + [c.flush()])
     track = c.stages[0].tracks[8]
-    bias_m = (dll_balance_chips(y, fs, 8, 400.0 + twin, -2100.0, 0.25, 1.5)
-              - dll_balance_chips(z, fs, 8, 400.0 + twin, -2100.0, 0.25, 1.5)) * SPEED_OF_LIGHT_M_S / CA_CHIP_RATE_HZ
+    bias_chips = (early_late_balance_chips(y, fs, 8, 400.0 + twin, -2100.0, 0.25, 1.5)
+                  - early_late_balance_chips(z, fs, 8, 400.0 + twin, -2100.0, 0.25, 1.5))
+    bias_m = bias_chips * SPEED_OF_LIGHT_M_S / CA_CHIP_RATE_HZ
     print(f"twin at {track.legit_offset_chips:.4f} chip, range {bias_m:.2f} m, {c.front_end.as_event()['shape']}")
     assert not c.front_end.shape.rectangular
     assert abs(track.legit_offset_chips - twin) < 0.015
     assert abs(bias_m) < 2.5
+
