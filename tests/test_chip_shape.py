@@ -412,4 +412,3 @@ def test_a_close_twin_behind_a_front_end_keeps_its_range_when_the_shape_is_measu
     assert not c.front_end.shape.rectangular
     assert abs(track.legit_offset_chips - twin) < 0.015
     assert abs(bias_m) < 2.5
-

@@ -16,6 +16,7 @@ from scipy.signal import butter, sosfilt
 from ..defense import Canceller, CancellerConfig, delay_profile, refine_peak
 from ..gps import CA_CHIP_RATE_HZ, L1_HZ, SPEED_OF_LIGHT_M_S, ca_code
 from ..receiver import DopplerGrid, acquire
+from .xgen import FRONT_END_ORDER
 
 
 def ca_signal(prn: int, t_s: np.ndarray, code_phase_chips: float, doppler_hz: float, amplitude: float,
@@ -34,13 +35,13 @@ def behind_front_end(fs_hz: float, cutoff_hz: float, duration_s: float, legit: l
                      amplitude: float, advantage_db: float, seed: int = 1, up: int = 4, if_hz: float = 0.0
                      ) -> tuple[np.ndarray, np.ndarray]:
     """(with the spoofers, without) as a real front end delivers them: rendered `up` times faster with unit noise,
-    through a 5th-order Butterworth low-pass of cutoff_hz (0: none, ideal chips) and decimated to fs_hz -- chips
-    rounded as an analog filter before a sampler rounds them. legit and spoofers: (prn, code phase chips, Doppler
-    Hz, phase rad) each, amplitude per sample at fs_hz for unit noise per component. if_hz: real samples at that IF
-    (complex64 with no imaginary part), the band moved there before the sampler."""
+    through xgen's front end's Butterworth low-pass (FRONT_END_ORDER) of cutoff_hz (0: none, ideal chips) and
+    decimated to fs_hz -- chips rounded as an analog filter before a sampler rounds them. legit and spoofers: (prn,
+    code phase chips, Doppler Hz, phase rad) each, amplitude per sample at fs_hz for unit noise per component. if_hz:
+    real samples at that IF (complex64 with no imaginary part), the band moved there before the sampler."""
     rng = np.random.default_rng(seed)
     fast = fs_hz * up
-    sos = butter(5, cutoff_hz, fs=fast, output="sos") if cutoff_hz else None
+    sos = butter(FRONT_END_ORDER, cutoff_hz, fs=fast, output="sos") if cutoff_hz else None
     state = [np.zeros((sos.shape[0], 2), dtype=complex) if sos is not None else None for _ in range(2)]
     gain = 10 ** (advantage_db / 20)
     out: list[list[np.ndarray]] = [[], []]
@@ -74,17 +75,17 @@ def cancelling_pairs(x: np.ndarray, fs_hz: float, spoofers: list[tuple], legit: 
     return c
 
 
-def early_late_balance_chips(x: np.ndarray, fs: float, prn: int, code_phase_chips: float, doppler_hz: float,
+def early_late_balance_chips(x: np.ndarray, fs_hz: float, prn: int, code_phase_chips: float, doppler_hz: float,
                              half_spacing_chips: float, from_s: float) -> float:
     """Where a non-coherent early-late loop balances on x (chips from code_phase_chips, within -0.9..+0.3: a front
     end's delay lies before it): the 1 ms correlations' magnitudes, averaged from from_s on, on a 0.01-chip grid; the
     balance's fall through zero nearest the peak, interpolated between its 0.001-chip steps."""
-    k = int(round(fs * 1e-3))
-    first = int(from_s * fs) // k * k
+    k = int(round(fs_hz * 1e-3))
+    first = int(from_s * fs_hz) // k * k
     blocks = (x.size - first) // k - 1
     lags = np.round(np.arange(-1.2, 1.2001, 0.01), 4)
-    start = (code_phase_chips + first / fs * CA_CHIP_RATE_HZ * (1 + doppler_hz / L1_HZ)) % 1023
-    y, _, _ = delay_profile(x[first:].astype(np.complex128), fs, prn, start, doppler_hz, 0.0, lags, blocks)
+    start = (code_phase_chips + first / fs_hz * CA_CHIP_RATE_HZ * (1 + doppler_hz / L1_HZ)) % 1023
+    y, _, _ = delay_profile(x[first:].astype(np.complex128), fs_hz, prn, start, doppler_hz, 0.0, lags, blocks)
     mag = np.mean(np.abs(y), axis=1)
     taus = np.arange(-0.9, 0.3, 0.001)
     balance = np.interp(taus + half_spacing_chips, lags, mag) - np.interp(taus - half_spacing_chips, lags, mag)
