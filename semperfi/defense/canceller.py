@@ -799,18 +799,64 @@ REMOVAL_RCOND = 1e-6     # the lags' Gram inverted on its directions this far ab
 # phases: one half a phase off leaves at most -30 dB of a signal on one lag; one Gram from another period's phase
 # left -15 dB (a 50 dB-Hz twin still trackable), 32 phases -26 dB
 REMOVAL_PHASES = 64
+# A remainder is not a signal a loop can hold for long: where the twin crosses its spoofer, the first stage's joint
+# track takes part of it with the spoofer, and what is left beats against the spoofer's residual. Followed alone, it
+# was lost three times in 51 s and the satellite left in the output (GPS-SDR-SIM behind 1 MHz, real samples, flying,
+# 500 m, +15 dB: PRN 7's range 21.8 m off behind the filter). So a removal is leashed to its spoofer's first-stage
+# track, which holds (the strongest signal there is): its own loops follow the remainder while they stay within
+# REMOVAL_LEASH_CHIPS of where that track puts the twin (within REMOVAL_CENTRE_CHIPS of the spoofer: the lags' reach
+# covers both) and within REMOVAL_LEASH_HZ of its Doppler (a flying receiver's twin beats against a static attacker's
+# spoofer at up to ~30 Hz), and are moved back there when they stray; it keeps its lock while that track does.
+REMOVAL_LEASH_CHIPS = 0.5
+REMOVAL_CENTRE_CHIPS = 1.0
+REMOVAL_LEASH_HZ = 50.0
 
 
 class RemovalTrack(AdversaryTrack):
-    """A PRN's remainder followed by a lone track and taken out by projection on the code around it (the lags)."""
+    """A PRN's remainder followed by a lone track leashed to its spoofer's (anchor), and taken out by projection on
+    the code around it (the lags)."""
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
+        self.anchor: AdversaryTrack | None = None   # the PRN's first-stage track (None: the removal follows alone)
+        self.anchor_offset_chips = 0.0              # where the remainder was from it, for an anchor without a twin
         reach = int(round(REMOVAL_REACH_CHIPS / REMOVAL_STEP_CHIPS))
         self.lags = REMOVAL_STEP_CHIPS * np.arange(-reach, reach + 1)
         self._zero = reach                  # the lag of the replica itself
         self._fit: np.ndarray | None = None   # the Gram's pseudo-inverse: the components from the correlations
         self._prompt: np.ndarray | None = None   # the correlation with the replica itself, per period
+
+    def leash(self, anchor: AdversaryTrack, remainder_chips: float, sample: int) -> None:
+        """Follow the remainder (its code phase at an absolute sample) leashed to its spoofer's first-stage track,
+        when it lies within REMOVAL_CENTRE_CHIPS of it (further off it is a signal of its own, the spoofer's residual
+        apart, that its loops hold alone)."""
+        chips = anchor.channel.code_phase_at(sample)
+        if chips is None or abs(chips_offset(remainder_chips, chips)) > REMOVAL_CENTRE_CHIPS:
+            return
+        self.anchor, self.anchor_offset_chips = anchor, chips_offset(remainder_chips, chips)
+
+    def track(self, tracked: np.ndarray, base_sample: int) -> None:
+        leashed = self._pull_to_anchor()
+        super().track(tracked, base_sample)
+        if leashed:
+            self.channel.hold_lock()
+
+    def _pull_to_anchor(self) -> bool:
+        """The loops moved back to where the anchor puts the twin when they strayed (REMOVAL_LEASH_*); whether the
+        anchor still holds what it tracks (False: it lost it, or its history does not reach this track's samples)."""
+        anchor = self.anchor
+        if anchor is None or not anchor.channel.locked:
+            return False
+        own_chips, own_hz, at = self.channel.code_now()
+        chips = anchor.channel.code_phase_at(at)
+        if chips is None:
+            return False
+        offset = self.anchor_offset_chips if anchor.legit_offset_chips is None else anchor.legit_offset_chips
+        want = (chips + float(np.clip(offset, -REMOVAL_CENTRE_CHIPS, REMOVAL_CENTRE_CHIPS))) % CA_CODE_LENGTH_CHIPS
+        hz = anchor.channel.doppler_at(at)
+        if abs(chips_offset(want, own_chips)) > REMOVAL_LEASH_CHIPS or abs(own_hz - hz) > REMOVAL_LEASH_HZ:
+            self.channel.steer(want, hz)
+        return True
 
     def _fits(self, block: np.ndarray) -> np.ndarray:
         """(REMOVAL_PHASES, lags, lags): the pseudo-inverse of the lags' Gram over a period like block's, its code
@@ -1032,6 +1078,7 @@ class Canceller:
         apart are cancelled from the first sample alike). What the tracks judged of their twins and of the
         spoofers' place is kept; their measurements start again."""
         old, self.stages, self._emitted = self.stages, [], 0
+        again: dict[int, AdversaryTrack] = {}   # id of each old track -> its new one
         for st in old:
             stage = CancellerStage(self.fs_hz, self.if_hz, st.index, self.cfg, self.front_end)
             for prn, tr in st.tracks.items():
@@ -1045,7 +1092,13 @@ class Canceller:
                                 removal=isinstance(tr, RemovalTrack))
                 new.defer_twin, new.dismissed_chips = tr.defer_twin, tr.dismissed_chips
                 new.spoofer_place_chips, new.place_learnt_ms = tr.spoofer_place_chips, tr.place_learnt_ms
+                again[id(tr)] = new
             self.stages.append(stage)
+        for st in old:
+            for tr in st.tracks.values():
+                if isinstance(tr, RemovalTrack) and tr.anchor is not None:
+                    new = again[id(tr)]
+                    new.anchor, new.anchor_offset_chips = again.get(id(tr.anchor)), tr.anchor_offset_chips
 
     def remove(self, remainder: Peak, sample: int) -> AdversaryTrack | None:
         """Take out what is left of a PRN given up (a RemovalTrack on its remainder, at an absolute sample). The
@@ -1054,7 +1107,7 @@ class Canceller:
         or one cancelling another copy further off. Left behind the chasers, it tracked what they had half taken out
         and lost it three times in 2.5 s, and the satellite stayed in the output, called removed (GPS-SDR-SIM behind
         1 MHz, flying, 500 m, +10 dB: PRN 7 at 36-41 dB-Hz to the end, our receiver's range behind the filter 9 m
-        off)."""
+        off). It is leashed to the PRN's first-stage track (RemovalTrack.leash) when there is one."""
         stage = 1
         for k, st in enumerate(self.stages[1:], start=1):
             tr = st.tracks.get(remainder.prn)
@@ -1066,7 +1119,11 @@ class Canceller:
                 del st.tracks[remainder.prn]
             else:
                 stage = k + 1
-        return self.cancel(remainder, sample, stage, removal=True)
+        track = self.cancel(remainder, sample, stage, removal=True)
+        anchor = self.stages[0].tracks.get(remainder.prn) if self.stages else None
+        if track is not None and anchor is not None and not isinstance(anchor, RemovalTrack):
+            track.leash(anchor, remainder.code_phase_chips, sample)
+        return track
 
     def removing(self, prn: int) -> bool:
         """Whether a PRN's remainder is being taken out (a RemovalTrack follows it)."""

@@ -265,6 +265,19 @@ class Channel:
         carrier's Doppler, that sample) -- initial_state's arguments to start another channel on it."""
         return float(self.st[CODE_PHASE]), float(self.st[CARR_FREQ]), float(self.st[NEXT_SAMPLE])
 
+    def steer(self, code_phase_chips: float, doppler_hz: float) -> None:
+        """Put the loops on a code phase (the chip arriving at the next sample) and a Doppler given from outside: a
+        channel leashed to another's track. Its code runs from the first epoch at or after that sample (the periods
+        before it are skipped, never read twice), its carrier's phase is kept."""
+        at = float(self.st[NEXT_SAMPLE])
+        fresh = initial_state(code_phase_chips, at, doppler_hz, self.fs_hz, at)
+        for k in (CODE_PHASE, CODE_RATE, NEXT_SAMPLE, CARR_FREQ, FREQ_STATE):
+            self.st[k] = fresh[k]
+
+    def hold_lock(self) -> None:
+        """Locked whatever its own prompts say: a channel steered from outside has the lock of what steers it."""
+        self.locked, self._bad_windows = True, 0
+
     def _update_lock(self, prompt: np.ndarray) -> None:
         self._window.append(prompt)
         self._window_len += prompt.size
