@@ -1067,6 +1067,54 @@ def test_a_twin_is_biased_by_what_its_spoofers_cancellation_leaves_near_it():
     assert not biased_twin(2.7, 0.9, attenuation_db=5.0)         # far enough whatever is left
 
 
+@pytest.mark.parametrize("case", ["rounding", "alarm-only", "elsewhere", "ideal-chips"])
+def test_a_close_twin_that_is_a_front_ends_rounding_is_not_given_up(case):
+    """Behind a front end, the two-path fit on ideal chips' model finds the rounding of a spoofer's chips 0.2-0.3 chip
+    under it, and follows that as the twin when the alarm's own pair held the legitimate peak further off (GPS-SDR-SIM
+    behind 1 MHz, static, 3 km, +3 and +6 dB: PRN 14's 7.2 chips away). Judged too close under a spoofer that much
+    stronger, the PRN was given up and called removed, while its legitimate signal stayed in the output, unbiased.
+    It is not given up (`twin_doubted`) when the alarm saw the legitimate peak apart, the cleaned signal's strongest
+    peak of the PRN lies there again, and the chips were found rounded; it is given up as before when the far peak
+    was the alarm's alone (a noise or cross-talk maximum under a strong spoofer), when the cleaned signal's strongest
+    peak lies elsewhere, or on ideal chips (where the two-path model is the signal's)."""
+    from types import SimpleNamespace
+    from semperfi.defense.chip_shape import ChipShape
+    from semperfi.defense.guard import JUDGED_AFTER_WINDOWS, SpoofGuard
+
+    class Events:
+        def __init__(self):
+            self.rows = []
+
+        def emit(self, kind, t_s, **fields):
+            self.rows.append({"event": kind, **fields})
+    events = Events()
+    guard = SpoofGuard(load_config(None, []), FS, 0.0, events, remove_given_up=True)
+    spoofer_chips, twin_chips = 100.0, 0.31
+    track = SimpleNamespace(settled=True, attenuation_db=[(35.0, False)] * JUDGED_AFTER_WINDOWS,
+                            twin_advantage_db=18.2, legit_offset_chips=twin_chips, latest_attenuation_db=35.0,
+                            prn=14, channel=SimpleNamespace(code_phase_at=lambda sample: spoofer_chips,
+                                                            doppler_at=lambda sample: 2618.0))
+    guard._tracks = lambda prn: [track] if prn == 14 else []
+    removed = []
+    guard._remove = lambda prn, remainder, sample, t_s, reason="": removed.append((prn, remainder.code_phase_chips))
+    meter = guard.canceller.front_end
+    meter.done = True
+    if case != "ideal-chips":
+        meter.shape = ChipShape((0.2, 0.6, 0.2))
+    guard.verified.add(14)
+    if case != "alarm-only":
+        guard._strongest_apart[14] = 7.3 if case != "elsewhere" else -3.1
+    guard._seen_apart[14] = 7.23
+    guard._remove_biased_twins(0, 4.4)
+    doubted = [r for r in events.rows if r["event"] == "twin_doubted"]
+    if case == "rounding":
+        assert 14 not in guard.gave_up and not removed
+        assert doubted and doubted[0]["legitimate_offset_chips"] == 7.23 and doubted[0]["twin_offset_chips"] == 0.31
+    else:
+        assert 14 in guard.gave_up and not doubted
+        assert removed == [(14, spoofer_chips + twin_chips)]
+
+
 def test_the_plug_in_filter_judges_a_twin_once_and_never_takes_a_satellite_away_later():
     """Two PRNs cancelled with twins 0.4 chip off: the one whose spoofer is 20 dB stronger when its tracks have
     settled is given up (and its twin taken out); the one 6 dB stronger then is kept, and stays kept when later its

@@ -77,6 +77,9 @@ BEAT_STALE_S = 1.0     # a time push's beat unseen on a PRN this long: its separ
 COMMON_WAIT_S = 1.0    # a beat on a few PRNs alike, no alarm yet: how long the others have to show it too
 MAX_SWAPS = 2          # a PRN whose cancelled peak is found legitimate this often is given up
 MAX_REMOVALS = 3       # a PRN taken out is taken out again this often at most, each time its removal ends
+# an alarm's peak and a cleaned signal's strongest are one signal when they lie this close, in chips from their
+# spoofer (a flying receiver's twin moves 0.017 chip/s against a static attacker's: 0.1 chip in the ~5 s between)
+SAME_PEAK_CHIPS = 0.3
 REMOVED_REMAINDER = "given up: what is left of it is cancelled too, the satellite left out of the output"
 REMOVED_SPOOFER = "given up before any stage took it on: its spoofer is taken out as one path (a twin apart stays)"
 # A cancellation that assumed the stronger of two peaks the attacker's whose settled joint track finds its twin this
@@ -204,6 +207,11 @@ class SpoofGuard:
         self.removed: set[int] = set()                   # PRNs given up and taken out whole (remove_given_up)
         self._removals: dict[int, int] = {}              # how often each was (taken out again: _keep_removed)
         self._twin_judged: set[int] = set()              # verified PRNs whose twin the plug-in filter has judged
+        # PRNs whose alarm showed the legitimate peak apart (chips from the spoofer) while the two-path fit found a
+        # twin under the spoofer's peak, which is followed instead (_start_cancelling); and where the strongest peak
+        # of a verified PRN's cleaned signal lay (chips from the spoofer): _rounding_twin
+        self._seen_apart: dict[int, float] = {}
+        self._strongest_apart: dict[int, float] = {}
         self._assumed_stronger: set[int] = set()         # PRNs cancelled on the guess that the stronger peak is it
         self._stronger_than_sky: set[int] = set()        # ... and on power: stronger than any satellite's signal
         self._roles_swapped: set[int] = set()            # ... restarted on their twin, the stronger (ROLES_SWAPPED_DB)
@@ -903,8 +911,11 @@ class SpoofGuard:
         amplitude = caf_amplitude(x, self.fs_hz, self.if_hz, peak.prn, peak.code_phase_chips, peak.doppler_hz)
         legit = None if choice.legitimate is None else choice.legitimate.code_phase_chips
         hidden = None
+        self._seen_apart.pop(prn, None)
         if legit is None or chips_apart(legit, peak.code_phase_chips) >= JOINT_WITHIN_CHIPS:
             hidden = self._hidden_twin(x, peak)
+            if hidden is not None and legit is not None:
+                self._seen_apart[prn] = chips_offset(legit, peak.code_phase_chips)
             legit = legit if hidden is None else hidden
         stage = self._stages(prn)
         if self.canceller.cancel(peak, peak_sample, stage, legit, defer_twin=implausible) is None:
@@ -1003,6 +1014,8 @@ class SpoofGuard:
                        attenuation_db=self.canceller.report().get(prn), next=reason or None)
             if target is None:
                 self.verified.add(prn)
+                if left:
+                    self._note_strongest(prn, caf.best.code_phase_chips, first)
             elif self.canceller.cancel(target, first, stage + 1) is None:
                 self._refuse(prn, f"{reason} after {stage + 1} SIC iterations (the bound)", target, first, t_s)
             else:
@@ -1060,11 +1073,42 @@ class SpoofGuard:
             twin = self.close_twin(prn)
             if twin is None or not biased_twin(*twin):
                 continue
+            if self._rounding_twin(prn, twin[1], t_s):
+                continue
             remainder = self._at_twin_of(prn, sample)
             if remainder is None:
                 continue
             self._refuse(prn, f"its legitimate twin lies {abs(twin[1]):.2f} chip under a spoofer {twin[0]:.1f} dB "
                               "stronger: its range would stay biased", remainder, sample, t_s)
+
+    def _note_strongest(self, prn: int, code_phase_chips: float, sample: int) -> None:
+        """Where a verified PRN's strongest peak on the cleaned signal (its code phase at an absolute sample) lies
+        from its spoofer, as the first stage's track holds it."""
+        tr = self.canceller.stages[0].tracks.get(prn) if self.canceller.stages else None
+        spoofer = None if tr is None else tr.channel.code_phase_at(sample)
+        if spoofer is not None:
+            self._strongest_apart[prn] = chips_offset(code_phase_chips, spoofer)
+
+    def _rounding_twin(self, prn: int, twin_chips: float, t_s: float) -> bool:
+        """Whether a close twin is taken for a front end's rounding of the spoofer's own chips, not given up for: the
+        chips found rounded, the PRN's alarm showed its legitimate peak apart (beyond JOINT_WITHIN_CHIPS) while the
+        two-path fit, on ideal chips' model, found this one under the spoofer's peak, and the PRN's strongest peak on
+        the cleaned signal is that one again (within SAME_PEAK_CHIPS), not the twin. A PRN has one legitimate signal;
+        behind 1 MHz such a fit places the rounding 0.2-0.3 chip off (GPS-SDR-SIM, static, 3 km, +3 and +6 dB: PRN 14's
+        legitimate signal 7.2 chips apart at 40 dB-Hz), and giving it up called the PRN removed while its legitimate
+        signal, unbiased, stayed in the output (our receiver behind the filter: 0.06 m). An alarm's far peak alone is
+        no proof: under a strong spoofer 500 m off it was a maximum of the noise or of cross-talk (36 dB-Hz, 144 and
+        462 chips away, the twin 0.38 chip off)."""
+        apart, strongest = self._seen_apart.get(prn), self._strongest_apart.get(prn)
+        meter = self.canceller.front_end
+        if apart is None or strongest is None or not meter.done or meter.shape.rectangular \
+                or abs(strongest - apart) > SAME_PEAK_CHIPS:
+            return False
+        self._emit("twin_doubted", t_s, prn=prn, twin_offset_chips=round(float(twin_chips), 3),
+                   legitimate_offset_chips=round(apart, 3),
+                   reason="the close twin is taken for the front end's rounding of the spoofer's chips: the alarm "
+                          "showed the legitimate signal apart")
+        return True
 
     def _at_twin_of(self, prn: int, sample: int) -> Peak | None:
         """Where a PRN's legitimate twin is at an absolute sample, seen from the track that holds it against the
