@@ -130,3 +130,7 @@ def test_a_removal_holds_while_its_twin_closes_on_its_spoofer():
     assert c.removing(PRN) and c.stages[0].tracks.get(PRN) is spoofer
     assert _power_db(z, PRN, CP + 0.3, DOPPLER + turn_hz) > 13.0          # the twin as received
     assert _power_db(y, PRN, CP + 0.3, DOPPLER + turn_hz) < 1.0
+    c.restart()   # the start-up replay begins every stage again: the removal keeps its leash, on the new track
+    again = [tr for st in c.stages for tr in st.tracks.values() if isinstance(tr, RemovalTrack)]
+    assert len(again) == 1 and again[0].anchor is c.stages[0].tracks[PRN] is not spoofer
+    assert again[0].anchor_offset_chips == removal.anchor_offset_chips
