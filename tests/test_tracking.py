@@ -164,3 +164,23 @@ def test_channels_run_on_threads_give_what_they_give_one_after_another(monkeypat
     monkeypatch.setenv(workers.THREADS_ENV, "1")
     serial = workers.run_each(lambda row: float(np.sum(np.cumsum(row) ** 2)), list(x))
     assert threaded == serial
+
+
+def test_a_channel_steered_from_outside_runs_its_code_from_there_and_keeps_the_lock_it_is_given():
+    """Channel.steer (a removal leashed to its spoofer's track): the chip given arrives at the next sample, so the
+    next code epoch falls where that chip and the Doppler's chip rate put it, the first at or after that sample; the
+    carrier runs at the Doppler given. hold_lock: a channel that lost its lock in noise is locked again."""
+    rng = np.random.default_rng(5)
+    ch = Channel(3, FS, 0.0, initial_state(100.0, 0, 1000.0, FS, 0))
+    x = (rng.standard_normal(int(3 * FS)) + 1j * rng.standard_normal(int(3 * FS))).astype(np.complex64)
+    ch.process(x, 0)
+    assert not ch.locked
+    _, _, at = ch.code_now()
+    ch.steer(700.3, -1500.0)
+    chips, doppler_hz, sample = ch.code_now()
+    step = CA_CHIP_RATE_HZ * (1 - 1500.0 / L1_HZ) / FS
+    epoch = at + (1023 - 700.3) / step          # where chip 0 arrives, in samples
+    assert doppler_hz == -1500.0 and sample == np.ceil(epoch)
+    assert chips == pytest.approx((sample - epoch) * step, abs=1e-9) and 0 <= chips < step
+    ch.hold_lock()
+    assert ch.locked
