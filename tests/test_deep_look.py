@@ -9,6 +9,7 @@ from semperfi.defense.config import load_config
 from semperfi.defense import guard as guard_module
 from semperfi.defense.guard import SpoofGuard
 from semperfi.gps.codes import ca_code, chips_apart
+from signals import Events
 
 FS = 2.6e6
 SECONDS = 3.0
@@ -17,14 +18,6 @@ DOPPLER_HZ = {5: 1200.0, 9: -2300.0, 14: 400.0}
 # PRN 5: a plain alarm (spoofer 50 dB-Hz, twin 44 dB-Hz 3 chips off) makes the attack known; PRN 9: a spoofer at
 # 42 dB-Hz and its twin at 35 dB-Hz 2.9 chips off; PRN 14: a satellite alone (no spoofer), 42 dB-Hz
 SIGNALS = [(5, 100.0, 50.0), (5, 103.0, 44.0), (9, 400.0, 42.0), (9, 397.1, 35.0), (14, 700.0, 42.0)]
-
-
-class Events:
-    def __init__(self):
-        self.rows = []
-
-    def emit(self, kind, t_s, **fields):
-        self.rows.append({"event": kind, "t_s": t_s, **fields})
 
 
 def _samples(signals=SIGNALS, doppler_hz=DOPPLER_HZ, seed: int = 7) -> np.ndarray:

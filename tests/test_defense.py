@@ -25,7 +25,7 @@ from semperfi.sim.run import simulate_to_file
 from semperfi.sim.scenario import load_scenario
 from semperfi.sim.simulate import Simulator
 from semperfi.sim.truth import read_signal_truth, truth_paths
-from signals import ca_signal
+from signals import Events, ca_signal
 
 FS = 2e6
 LAT, LON, H = 42.3398, -71.0892, 10.0
@@ -1081,12 +1081,6 @@ def test_a_close_twin_that_is_a_front_ends_rounding_is_not_given_up(case):
     from semperfi.defense.chip_shape import ChipShape
     from semperfi.defense.guard import JUDGED_AFTER_WINDOWS, SpoofGuard
 
-    class Events:
-        def __init__(self):
-            self.rows = []
-
-        def emit(self, kind, t_s, **fields):
-            self.rows.append({"event": kind, **fields})
     events = Events()
     guard = SpoofGuard(load_config(None, []), FS, 0.0, events, remove_given_up=True)
     spoofer_chips, twin_chips = 100.0, 0.31

@@ -22,6 +22,12 @@ def _scene():
                             [(PRN, CP, DOPPLER, 1.9)], amplitude, ADVANTAGE_DB, seed=5)
 
 
+def _twin_at(spoofer, at: int) -> Peak:
+    """Where the spoofer's joint track holds its twin at an absolute sample, as the guard takes a remainder out."""
+    return Peak(PRN, float((spoofer.channel.code_phase_at(at) + spoofer.legit_offset_chips) % 1023),
+                spoofer.channel.doppler_at(0), 0.0, 0.0)
+
+
 def _cleaned(x: np.ndarray, projection: bool) -> tuple[np.ndarray, Canceller]:
     """The spoofer cancelled jointly with its twin, then the PRN's remainder (the twin) taken out at REMOVED_AT_S, as
     the guard does with a biased twin (projection) or with one more lone replica (as before)."""
@@ -30,9 +36,7 @@ def _cleaned(x: np.ndarray, projection: bool) -> tuple[np.ndarray, Canceller]:
     step, out, removed = int(0.05 * FS), [], False
     for i in range(0, x.size, step):
         if not removed and i >= REMOVED_AT_S * FS:
-            at = i - 2 * step
-            chips = float((spoofer.channel.code_phase_at(at) + spoofer.legit_offset_chips) % 1023)
-            c.cancel(Peak(PRN, chips, spoofer.channel.doppler_at(0), 0.0, 0.0), at, 1, removal=projection)
+            c.cancel(_twin_at(spoofer, i - 2 * step), i - 2 * step, 1, removal=projection)
             removed = True
         out.append(c.push(x[i:i + step]))
     return np.concatenate(out + [c.flush()]), c
@@ -87,14 +91,11 @@ def test_a_removal_takes_the_place_of_the_stages_that_chased_the_remainder():
     spoofer = c.cancel(Peak(PRN, CP, DOPPLER, 0.0, 0.0), 0, 0, legit_code_phase_chips=CP + TWIN_CHIPS)
     step, out, chaser, removal = int(0.05 * FS), [], None, None
 
-    def twin_at(at: int) -> Peak:
-        return Peak(PRN, float((spoofer.channel.code_phase_at(at) + spoofer.legit_offset_chips) % 1023),
-                    spoofer.channel.doppler_at(0), 0.0, 0.0)
     for i in range(0, x.size, step):
         if chaser is None and i >= (REMOVED_AT_S - 0.4) * FS:
-            chaser = c.cancel(twin_at(i - 2 * step), i - 2 * step, 1)
+            chaser = c.cancel(_twin_at(spoofer, i - 2 * step), i - 2 * step, 1)
         elif removal is None and i >= REMOVED_AT_S * FS:
-            removal = c.remove(twin_at(i - 2 * step), i - 2 * step)
+            removal = c.remove(_twin_at(spoofer, i - 2 * step), i - 2 * step)
         out.append(c.push(x[i:i + step]))
     y = np.concatenate(out + [c.flush()])[:z.size]
     assert chaser is not None and isinstance(removal, RemovalTrack)
@@ -121,9 +122,7 @@ def test_a_removal_holds_while_its_twin_closes_on_its_spoofer():
     step, out, removal = int(0.05 * FS), [], None
     for i in range(0, x.size, step):
         if removal is None and i >= REMOVED_AT_S * FS:
-            at = i - 2 * step
-            removal = c.remove(Peak(PRN, float((spoofer.channel.code_phase_at(at) + spoofer.legit_offset_chips) % 1023),
-                                    spoofer.channel.doppler_at(0), 0.0, 0.0), at)
+            removal = c.remove(_twin_at(spoofer, i - 2 * step), i - 2 * step)
         out.append(c.push(x[i:i + step]))
     y = np.concatenate(out + [c.flush()])[:z.size]
     assert isinstance(removal, RemovalTrack) and removal.anchor is spoofer

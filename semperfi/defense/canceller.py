@@ -1078,7 +1078,7 @@ class Canceller:
         apart are cancelled from the first sample alike). What the tracks judged of their twins and of the
         spoofers' place is kept; their measurements start again."""
         old, self.stages, self._emitted = self.stages, [], 0
-        again: dict[int, AdversaryTrack] = {}   # id of each old track -> its new one
+        again: dict[int, AdversaryTrack] = {}   # id of each old track -> its new one (a removal's anchor)
         for st in old:
             stage = CancellerStage(self.fs_hz, self.if_hz, st.index, self.cfg, self.front_end)
             for prn, tr in st.tracks.items():
@@ -1092,13 +1092,10 @@ class Canceller:
                                 removal=isinstance(tr, RemovalTrack))
                 new.defer_twin, new.dismissed_chips = tr.defer_twin, tr.dismissed_chips
                 new.spoofer_place_chips, new.place_learnt_ms = tr.spoofer_place_chips, tr.place_learnt_ms
+                if isinstance(tr, RemovalTrack) and tr.anchor is not None:   # its anchor's stage, the first, is anew
+                    new.anchor, new.anchor_offset_chips = again.get(id(tr.anchor)), tr.anchor_offset_chips
                 again[id(tr)] = new
             self.stages.append(stage)
-        for st in old:
-            for tr in st.tracks.values():
-                if isinstance(tr, RemovalTrack) and tr.anchor is not None:
-                    new = again[id(tr)]
-                    new.anchor, new.anchor_offset_chips = again.get(id(tr.anchor)), tr.anchor_offset_chips
 
     def remove(self, remainder: Peak, sample: int) -> AdversaryTrack | None:
         """Take out what is left of a PRN given up (a RemovalTrack on its remainder, at an absolute sample). The
