@@ -364,6 +364,9 @@ def clean(file, out_path, fs_hz, fmt, iq_swap, if_hz, adversarial, config_path, 
         click.echo(f"  gave up on: {s.gave_up}", err=True)
     if s.removed:
         click.echo(f"  taken out whole (the output leaves them out): PRNs {' '.join(map(str, s.removed))}", err=True)
+    if s.remnants:
+        click.echo(f"  spoofers' remnants taken out (the satellites kept): PRNs {' '.join(map(str, s.remnants))}",
+                   err=True)
     if s.interference:
         click.echo(f"  warning: {s.interference} (left in the output)", err=True)
     if not s.satellites and not (s.internal_error or s.input_error or s.interrupted):

@@ -1067,7 +1067,8 @@ def test_a_twin_is_biased_by_what_its_spoofers_cancellation_leaves_near_it():
     assert not biased_twin(2.7, 0.9, attenuation_db=5.0)         # far enough whatever is left
 
 
-@pytest.mark.parametrize("case", ["rounding", "alarm-only", "elsewhere", "ideal-chips"])
+@pytest.mark.parametrize("case", ["rounding", "alarm-only", "elsewhere", "ideal-chips", "stronger-than-sky",
+                                  "stronger-than-sky-close", "stronger-than-sky-ideal-chips"])
 def test_a_close_twin_that_is_a_front_ends_rounding_is_not_given_up(case):
     """Behind a front end, the two-path fit on ideal chips' model finds the rounding of a spoofer's chips 0.2-0.3 chip
     under it, and follows that as the twin when the alarm's own pair held the legitimate peak further off (GPS-SDR-SIM
@@ -1076,7 +1077,12 @@ def test_a_close_twin_that_is_a_front_ends_rounding_is_not_given_up(case):
     It is not given up (`twin_doubted`) when the alarm saw the legitimate peak apart, the cleaned signal's strongest
     peak of the PRN lies there again, and the chips were found rounded; it is given up as before when the far peak
     was the alarm's alone (a noise or cross-talk maximum under a strong spoofer), when the cleaned signal's strongest
-    peak lies elsewhere, or on ideal chips (where the two-path model is the signal's)."""
+    peak lies elsewhere, or on ideal chips (where the two-path model is the signal's).
+
+    Under a spoofer stronger than any satellite, cancelled on its power (no alarm's pair), the "twin" is what the
+    shape's fit left of the spoofer (static 3 km, +15 dB: PRN 17, 0.59 chip, 25.5 dB under). When the cleaned
+    signal's strongest peak of the PRN lies beyond 1.2 chips, that remnant is taken out but the PRN is not given up
+    (`remnant_removed`); with the strongest peak within 1.2 chips, or on ideal chips, it is given up as before."""
     from types import SimpleNamespace
     from semperfi.defense.chip_shape import ChipShape
     from semperfi.defense.guard import JUDGED_AFTER_WINDOWS, SpoofGuard
@@ -1090,23 +1096,30 @@ def test_a_close_twin_that_is_a_front_ends_rounding_is_not_given_up(case):
                                                             doppler_at=lambda sample: 2618.0))
     guard._tracks = lambda prn: [track] if prn == 14 else []
     removed = []
-    guard._remove = lambda prn, remainder, sample, t_s, reason="": removed.append((prn, remainder.code_phase_chips))
+    guard._remove = lambda prn, remainder, sample, t_s, reason="", legitimate_offset_chips=None: removed.append(
+        (prn, remainder.code_phase_chips, legitimate_offset_chips))
     meter = guard.canceller.front_end
     meter.done = True
-    if case != "ideal-chips":
+    if not case.endswith("ideal-chips"):
         meter.shape = ChipShape((0.2, 0.6, 0.2))
     guard.verified.add(14)
     if case != "alarm-only":
-        guard._strongest_apart[14] = 7.3 if case != "elsewhere" else -3.1
-    guard._seen_apart[14] = 7.23
+        guard._strongest_apart[14] = {"elsewhere": -3.1, "stronger-than-sky-close": 0.9}.get(case, 7.3)
+    if case.startswith("stronger-than-sky"):
+        guard._stronger_than_sky.add(14)
+    else:
+        guard._seen_apart[14] = 7.23
     guard._remove_biased_twins(0, 4.4)
     doubted = [r for r in events.rows if r["event"] == "twin_doubted"]
     if case == "rounding":
         assert 14 not in guard.gave_up and not removed
         assert doubted and doubted[0]["legitimate_offset_chips"] == 7.23 and doubted[0]["twin_offset_chips"] == 0.31
+    elif case == "stronger-than-sky":
+        assert 14 not in guard.gave_up and not doubted
+        assert removed == [(14, spoofer_chips + twin_chips, 7.3)]
     else:
         assert 14 in guard.gave_up and not doubted
-        assert removed == [(14, spoofer_chips + twin_chips)]
+        assert removed == [(14, spoofer_chips + twin_chips, None)]
 
 
 def test_the_plug_in_filter_judges_a_twin_once_and_never_takes_a_satellite_away_later():
@@ -1143,13 +1156,17 @@ def test_the_plug_in_filter_judges_a_twin_once_and_never_takes_a_satellite_away_
     assert sorted(guard.gave_up) == [6] and guard.removed == {6}, (guard.gave_up, guard.removed)
 
 
-def test_a_twin_is_taken_out_where_the_strongest_spoofers_track_holds_it_and_again_when_its_removal_ends():
+@pytest.mark.parametrize("what", ["twin", "remnant"])
+def test_a_twin_is_taken_out_where_the_strongest_spoofers_track_holds_it_and_again_when_its_removal_ends(what):
     """PRN 6 followed twice: stage 0 with a twin that took its spoofer's power (a 'twin' 10 dB over its spoofer,
     0.3 chip off: no signal there), stage 1 with the twin 0.4 chip from a spoofer 20 dB stronger. The removal goes to
     the twin stage 1 holds (taken from stage 0's, it went where a later stage had cancelled the spoofer, lost its
     lock on what was left and ended: GPS-SDR-SIM behind 1 MHz, static, 500 m, +15 dB, PRN 1). A removal that ends
-    is placed again, MAX_REMOVALS times in all."""
+    is placed again, MAX_REMOVALS times in all. A spoofer's remnant taken out the same way, its PRN kept
+    (`remnant_removed`: the chips found rounded, a spoofer stronger than any satellite, the PRN's strongest peak on
+    the cleaned signal 5 chips off), is neither called removed nor given up, before its removal fails or after."""
     from semperfi.defense import guard as guard_module
+    from semperfi.defense.chip_shape import ChipShape
     from semperfi.defense.canceller import RemovalTrack
     from semperfi.defense.guard import MAX_REMOVALS, SpoofGuard
     from semperfi.receiver.acquisition import Peak
@@ -1174,11 +1191,20 @@ def test_a_twin_is_taken_out_where_the_strongest_spoofers_track_holds_it_and_aga
     guard._clean.clear()
     events = []
     guard._emit = lambda event, t_s, **kw: events.append((event, kw))
+    if what == "remnant":
+        meter = guard.canceller.front_end
+        meter.done, meter.shape = True, ChipShape((0.2, 0.6, 0.2))
+        guard._stronger_than_sky.add(prn)
+        guard._strongest_apart[prn] = 5.0
     guard._remove_biased_twins(sample, 0.6)
-    assert guard.removed == {prn}, guard.gave_up
+    taken = guard.removed if what == "twin" else guard.remnants
+    assert taken == {prn} and guard.removed | guard.remnants == {prn}, guard.gave_up
+    assert (prn in guard.gave_up) == (what == "twin")
     assert isinstance(guard.canceller.stages[2].tracks[prn], RemovalTrack)
     twin_chips = (holding.channel.code_phase_at(sample) + holding.legit_offset_chips) % 1023
-    removed_at = next(kw["code_phase_chips"] for e, kw in events if e == "prn_removed")
+    removed_at = next(kw["code_phase_chips"] for e, kw in events if e in ("prn_removed", "remnant_removed"))
+    assert [e for e, kw in events] == (["cancellation_refused", "prn_removed"] if what == "twin"
+                                       else ["remnant_removed"])
     assert abs(removed_at - twin_chips) < 0.01, (removed_at, twin_chips)   # not where stage 0's 'twin' is
     events.clear()
     for n in range(MAX_REMOVALS + 1):
@@ -1190,7 +1216,11 @@ def test_a_twin_is_taken_out_where_the_strongest_spoofers_track_holds_it_and_aga
     assert [e for e, kw in events] == ["removal_lost"] * (MAX_REMOVALS - 1) + ["removal_failed"]
     assert all(kw["restarted"] for e, kw in events if e == "removal_lost")
     # past the bound the PRN is no longer called removed: the output holds what is left of it, and the summary says so
-    assert guard.removed == set() and "could not hold" in guard.gave_up[prn]
+    assert guard.removed == set() and guard.remnants == set()
+    if what == "twin":
+        assert "could not hold" in guard.gave_up[prn]
+    else:
+        assert prn not in guard.gave_up and "could not be held" in events[-1][1]["reason"]
     guard._keep_removed(0.7)
     assert [e for e, kw in events].count("removal_failed") == 1
     assert guard_module.MAX_REMOVALS == MAX_REMOVALS

@@ -31,6 +31,7 @@ class CleanSummary:
     missing_s: float = 0.0             # of the --duration asked for, what the input ended before
     interference: str | None = None    # what the input held besides GPS at the end, if anything
     removed: tuple[int, ...] = ()      # PRNs given up and taken out whole: the output leaves them out
+    remnants: tuple[int, ...] = ()     # PRNs whose spoofer's remnant is taken out, their legitimate signals kept
 
 
 def clean_file(in_path, out_path, fmt, fs_hz, if_hz, cfg: dict, events_path=None, progress: bool = False,
@@ -88,7 +89,8 @@ def clean_file(in_path, out_path, fmt, fs_hz, if_hz, cfg: dict, events_path=None
                         tuple(sorted(guard.verified)), dict(guard.gave_up), guard.canceller.report(), clipped,
                         input_error, internal_error, interrupted, satellites=tuple(sorted(guard.present_prns)),
                         truncated_bytes=source.truncated_bytes, missing_s=source.missing_s,
-                        interference=monitor.watch.now, removed=tuple(sorted(guard.removed)))
+                        interference=monitor.watch.now, removed=tuple(sorted(guard.removed)),
+                        remnants=tuple(sorted(guard.remnants)))
 
 
 def _output_format(source):

@@ -82,6 +82,8 @@ MAX_REMOVALS = 3       # a PRN taken out is taken out again this often at most, 
 SAME_PEAK_CHIPS = 0.3
 REMOVED_REMAINDER = "given up: what is left of it is cancelled too, the satellite left out of the output"
 REMOVED_SPOOFER = "given up before any stage took it on: its spoofer is taken out as one path (a twin apart stays)"
+REMOVED_REMNANT = ("what is left under its spoofer is taken out: a front end's rounding of chips stronger than any "
+                   "satellite's, no twin; its legitimate signal apart stays in the output")
 # A cancellation that assumed the stronger of two peaks the attacker's whose settled joint track finds its twin this
 # much stronger than what its replica follows has its replica on the weaker signal: a close pair whose rounded peaks
 # merge, the twin hint on the wrong side, the loops drawn onto the other path (GPS-SDR-SIM behind 1 MHz, static, 500 m,
@@ -205,6 +207,7 @@ class SpoofGuard:
         self.gave_up: dict[int, str] = {}
         self.remove_given_up = remove_given_up
         self.removed: set[int] = set()                   # PRNs given up and taken out whole (remove_given_up)
+        self.remnants: set[int] = set()                  # PRNs whose spoofer's remnant is taken out, not the PRN
         self._removals: dict[int, int] = {}              # how often each was (taken out again: _keep_removed)
         self._twin_judged: set[int] = set()              # verified PRNs whose twin the plug-in filter has judged
         # PRNs whose alarm showed the legitimate peak apart (chips from the spoofer) while the two-path fit found a
@@ -1009,13 +1012,15 @@ class SpoofGuard:
                         target, reason = choice.adversarial, "another auxiliary peak remains: " + choice.reason
                         if choice.guessed:
                             self.guessed.add(prn)
+            apart = None if caf.best is None else self._from_spoofer(prn, caf.best.code_phase_chips, first)
             self._emit("sic_iteration", t_s, prn=prn, stage=stage, legitimate_dominates=target is None,
                        strongest_code_phase_chips=None if caf.best is None else round(caf.best.code_phase_chips, 4),
+                       strongest_offset_chips=None if apart is None else round(apart, 3),
                        attenuation_db=self.canceller.report().get(prn), next=reason or None)
             if target is None:
                 self.verified.add(prn)
-                if left:
-                    self._note_strongest(prn, caf.best.code_phase_chips, first)
+                if left and apart is not None:
+                    self._strongest_apart[prn] = apart
             elif self.canceller.cancel(target, first, stage + 1) is None:
                 self._refuse(prn, f"{reason} after {stage + 1} SIC iterations (the bound)", target, first, t_s)
             else:
@@ -1078,16 +1083,19 @@ class SpoofGuard:
             remainder = self._at_twin_of(prn, sample)
             if remainder is None:
                 continue
+            legitimate = self._legitimate_apart(prn)
+            if legitimate is not None:
+                self._remove(prn, remainder, sample, t_s, REMOVED_REMNANT, legitimate_offset_chips=legitimate)
+                continue
             self._refuse(prn, f"its legitimate twin lies {abs(twin[1]):.2f} chip under a spoofer {twin[0]:.1f} dB "
                               "stronger: its range would stay biased", remainder, sample, t_s)
 
-    def _note_strongest(self, prn: int, code_phase_chips: float, sample: int) -> None:
-        """Where a verified PRN's strongest peak on the cleaned signal (its code phase at an absolute sample) lies
-        from its spoofer, as the first stage's track holds it."""
+    def _from_spoofer(self, prn: int, code_phase_chips: float, sample: int) -> float | None:
+        """How far a code phase at an absolute sample lies from the PRN's spoofer, as its first stage's track holds
+        it (chips; None without one)."""
         tr = self.canceller.stages[0].tracks.get(prn) if self.canceller.stages else None
         spoofer = None if tr is None else tr.channel.code_phase_at(sample)
-        if spoofer is not None:
-            self._strongest_apart[prn] = chips_offset(code_phase_chips, spoofer)
+        return None if spoofer is None else chips_offset(code_phase_chips, spoofer)
 
     def _rounding_twin(self, prn: int, twin_chips: float, t_s: float) -> bool:
         """Whether a close twin is taken for a front end's rounding of the spoofer's own chips, not given up for: the
@@ -1109,6 +1117,22 @@ class SpoofGuard:
                    reason="the close twin is taken for the front end's rounding of the spoofer's chips: the alarm "
                           "showed the legitimate signal apart")
         return True
+
+    def _legitimate_apart(self, prn: int) -> float | None:
+        """Where a PRN's legitimate signal lies from its spoofer (chips) when its close twin is no signal but the
+        rounding of chips stronger than any satellite's: the chips found rounded, the spoofer cancelled on its power
+        alone (no alarm's pair to show the legitimate peak), and the PRN's strongest peak on the cleaned signal beyond
+        JOINT_WITHIN_CHIPS of it -- the twin is left in the cleaned signal, so a legitimate one that near would be the
+        strongest. What the two-path fit followed there is what the shape's fit left of the spoofer (GPS-SDR-SIM behind
+        1 MHz, static, 3 km, +15 dB: PRN 17's "twin" 0.59 chip and 25.5 dB under a 58 dB-Hz spoofer). It is taken out
+        all the same, a signal a receiver could lock onto, but the PRN is not given up: called removed, its
+        legitimate signal stayed in the output, unbiased (both receivers behind the filter: 0.24 m). None otherwise."""
+        strongest = self._strongest_apart.get(prn)
+        meter = self.canceller.front_end
+        if prn not in self._stronger_than_sky or prn in self._seen_apart or strongest is None or not meter.done \
+                or meter.shape.rectangular or abs(strongest) < JOINT_WITHIN_CHIPS:
+            return None
+        return strongest
 
     def _at_twin_of(self, prn: int, sample: int) -> Peak | None:
         """Where a PRN's legitimate twin is at an absolute sample, seen from the track that holds it against the
@@ -1134,13 +1158,18 @@ class SpoofGuard:
         the tracks hold it now, up to MAX_REMOVALS times; its output would hold the satellite again otherwise. Past
         that it is removed no more, and says so (`removal_failed`, the summary's gave_up): it was still listed as
         removed while the output held it (GPS-SDR-SIM behind 1 MHz, flying, 500 m, +10 dB, before Canceller.remove)."""
-        for prn in sorted(self.removed):
+        for prn in sorted(self.removed | self.remnants):
             if self.canceller.removing(prn):
                 continue
             if self._removals.get(prn, 0) >= MAX_REMOVALS:
-                self.removed.discard(prn)
-                self.gave_up[prn] += "; its removal could not hold: what is left of it stays in the output"
-                self._emit("removal_failed", t_s, prn=prn, removals=self._removals[prn], reason=self.gave_up[prn])
+                if prn in self.remnants:
+                    self.remnants.discard(prn)
+                    reason = "its spoofer's remnant could not be held: it stays in the output"
+                else:
+                    self.removed.discard(prn)
+                    self.gave_up[prn] += "; its removal could not hold: what is left of it stays in the output"
+                    reason = self.gave_up[prn]
+                self._emit("removal_failed", t_s, prn=prn, removals=self._removals[prn], reason=reason)
                 continue
             sample = self._cleaned - self._clean.size    # within every stage's history (the cleaned window's)
             remainder = self._at_twin_of(prn, sample)
@@ -1149,17 +1178,24 @@ class SpoofGuard:
             self._emit("removal_lost", t_s, prn=prn, restarted=placed,
                        code_phase_chips=None if remainder is None else round(remainder.code_phase_chips, 4))
 
-    def _remove(self, prn: int, remainder: Peak, sample: int, t_s: float,
-                reason: str = REMOVED_REMAINDER) -> None:
+    def _remove(self, prn: int, remainder: Peak, sample: int, t_s: float, reason: str = REMOVED_REMAINDER,
+                legitimate_offset_chips: float | None = None) -> None:
         """A PRN given up whose remainder still dominates where its spoofer was: that remainder (the legitimate twin
         merged with what the stages left of the spoofer) is taken out too, so that a receiver behind the plug-in
         filter does without the satellite rather than take a biased range from it (Canceller.remove: where the
-        removal goes, and which of the PRN's stages give way to it)."""
+        removal goes, and which of the PRN's stages give way to it). Given the legitimate signal's offset, what is
+        taken out is the spoofer's remnant alone, and the PRN is kept (`remnant_removed`: _legitimate_apart)."""
         if self.canceller.remove(remainder, sample) is None:
             return
-        self.removed.add(prn)
         self._removals[prn] = 1
-        self._emit("prn_removed", t_s, prn=prn, code_phase_chips=round(remainder.code_phase_chips, 4), reason=reason)
+        if legitimate_offset_chips is None:
+            self.removed.add(prn)
+            self._emit("prn_removed", t_s, prn=prn, code_phase_chips=round(remainder.code_phase_chips, 4),
+                       reason=reason)
+        else:
+            self.remnants.add(prn)
+            self._emit("remnant_removed", t_s, prn=prn, code_phase_chips=round(remainder.code_phase_chips, 4),
+                       legitimate_offset_chips=round(legitimate_offset_chips, 3), reason=reason)
 
     def _left_merged(self, prn: int, t_s: float) -> None:
         """A cancellation on power alone left no signal at all: the legitimate one went with the attacker's, aligned
@@ -1297,6 +1333,7 @@ class SpoofGuard:
         t_s = self._seen / self.fs_hz
         self._emit("defense_summary", t_s, alarms=sorted(self.alarmed_prns), cancelled=sorted(self.cancel_started),
                    verified=sorted(self.verified), gave_up=self.gave_up, removed=sorted(self.removed),
+                   remnants_removed=sorted(self.remnants),
                    attenuation_db=self.canceller.report(),
                    resolved=sorted(p for p in self.present_prns | self.extra_prns if self.resolved(p)),
                    guessed=sorted(self.guessed), merged=sorted(self.merged),
