@@ -1085,7 +1085,7 @@ class SpoofGuard:
                 continue
             legitimate = self._legitimate_apart(prn)
             if legitimate is not None:
-                self._remove(prn, remainder, sample, t_s, REMOVED_REMNANT, legitimate_offset_chips=legitimate)
+                self._remove(prn, remainder, sample, t_s, legitimate_offset_chips=legitimate)
                 continue
             self._refuse(prn, f"its legitimate twin lies {abs(twin[1]):.2f} chip under a spoofer {twin[0]:.1f} dB "
                               "stronger: its range would stay biased", remainder, sample, t_s)
@@ -1108,8 +1108,7 @@ class SpoofGuard:
         no proof: under a strong spoofer 500 m off it was a maximum of the noise or of cross-talk (36 dB-Hz, 144 and
         462 chips away, the twin 0.38 chip off)."""
         apart, strongest = self._seen_apart.get(prn), self._strongest_apart.get(prn)
-        meter = self.canceller.front_end
-        if apart is None or strongest is None or not meter.done or meter.shape.rectangular \
+        if apart is None or strongest is None or not self._chips_found_rounded() \
                 or abs(strongest - apart) > SAME_PEAK_CHIPS:
             return False
         self._emit("twin_doubted", t_s, prn=prn, twin_offset_chips=round(float(twin_chips), 3),
@@ -1128,11 +1127,15 @@ class SpoofGuard:
         all the same, a signal a receiver could lock onto, but the PRN is not given up: called removed, its
         legitimate signal stayed in the output, unbiased (both receivers behind the filter: 0.24 m). None otherwise."""
         strongest = self._strongest_apart.get(prn)
-        meter = self.canceller.front_end
-        if prn not in self._stronger_than_sky or prn in self._seen_apart or strongest is None or not meter.done \
-                or meter.shape.rectangular or abs(strongest) < JOINT_WITHIN_CHIPS:
+        if prn not in self._stronger_than_sky or prn in self._seen_apart or strongest is None \
+                or not self._chips_found_rounded() or abs(strongest) < JOINT_WITHIN_CHIPS:
             return None
         return strongest
+
+    def _chips_found_rounded(self) -> bool:
+        """Whether the chip-shape meter has measured the chips, and found them rounded by a front end."""
+        meter = self.canceller.front_end
+        return meter.done and not meter.shape.rectangular
 
     def _at_twin_of(self, prn: int, sample: int) -> Peak | None:
         """Where a PRN's legitimate twin is at an absolute sample, seen from the track that holds it against the
@@ -1195,7 +1198,7 @@ class SpoofGuard:
         else:
             self.remnants.add(prn)
             self._emit("remnant_removed", t_s, prn=prn, code_phase_chips=round(remainder.code_phase_chips, 4),
-                       legitimate_offset_chips=round(legitimate_offset_chips, 3), reason=reason)
+                       legitimate_offset_chips=round(legitimate_offset_chips, 3), reason=REMOVED_REMNANT)
 
     def _left_merged(self, prn: int, t_s: float) -> None:
         """A cancellation on power alone left no signal at all: the legitimate one went with the attacker's, aligned
