@@ -11,12 +11,11 @@ place (canceller.PLACE_VOTERS). scripts/twin-bias-map maps it; the tests' pairs 
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from scipy.signal import butter, sosfilt
 
 from ..defense import Canceller, CancellerConfig, delay_profile, refine_peak
 from ..gps import CA_CHIP_RATE_HZ, L1_HZ, SPEED_OF_LIGHT_M_S, ca_code
 from ..receiver import DopplerGrid, acquire
-from .xgen import FRONT_END_ORDER
+from .xgen import FrontEnd
 
 
 def ca_signal(prn: int, t_s: np.ndarray, code_phase_chips: float, doppler_hz: float, amplitude: float,
@@ -35,14 +34,13 @@ def behind_front_end(fs_hz: float, cutoff_hz: float, duration_s: float, legit: l
                      amplitude: float, advantage_db: float, seed: int = 1, up: int = 4, if_hz: float = 0.0
                      ) -> tuple[np.ndarray, np.ndarray]:
     """(with the spoofers, without) as a real front end delivers them: rendered `up` times faster with unit noise,
-    through xgen's front end's Butterworth low-pass (FRONT_END_ORDER) of cutoff_hz (0: none, ideal chips) and
+    through xgen's front end (its Butterworth low-pass of cutoff_hz; 0: none, ideal chips) and
     decimated to fs_hz -- chips rounded as an analog filter before a sampler rounds them. legit and spoofers: (prn,
     code phase chips, Doppler Hz, phase rad) each, amplitude per sample at fs_hz for unit noise per component. if_hz:
     real samples at that IF (complex64 with no imaginary part), the band moved there before the sampler."""
     rng = np.random.default_rng(seed)
     fast = fs_hz * up
-    sos = butter(FRONT_END_ORDER, cutoff_hz, fs=fast, output="sos") if cutoff_hz else None
-    state = [np.zeros((sos.shape[0], 2), dtype=complex) if sos is not None else None for _ in range(2)]
+    front_ends = [FrontEnd(cutoff_hz, fast, up, if_hz) for _ in range(2)]
     gain = 10 ** (advantage_db / 20)
     out: list[list[np.ndarray]] = [[], []]
     chunk = int(round(0.1 * fast))
@@ -55,11 +53,9 @@ def behind_front_end(fs_hz: float, cutoff_hz: float, duration_s: float, legit: l
         for prn, cp, dop, ph in spoofers:
             attacked += ca_signal(prn, t, cp, dop, amplitude * gain, ph)
         for i, v in enumerate((attacked, clean)):
-            if sos is not None:
-                v, state[i] = sosfilt(sos, v, zi=state[i])
-            if if_hz:
-                v = np.sqrt(2) * np.real(v * np.exp(2j * np.pi * if_hz * t)) + 0j
-            out[i].append(v[::up].astype(np.complex64))
+            iq = front_ends[i].filter(np.column_stack([v.real, v.imag]).ravel())
+            # real samples: the I at the IF, scaled to keep the signal's power
+            out[i].append((np.sqrt(2) * iq[0::2] + 0j if if_hz else iq[0::2] + 1j * iq[1::2]).astype(np.complex64))
     return np.concatenate(out[0]), np.concatenate(out[1])
 
 

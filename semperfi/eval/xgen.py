@@ -432,18 +432,21 @@ def mix(legit: Path, spoof: Path | None, out: Path, case: Case) -> Path:
 
 class FrontEnd:
     """A front end's low-pass and decimation over a stream of interleaved IQ blocks (the filter's state carried),
-    the band moved up to if_hz before the decimation (a real recording's I is then the signal at that IF)."""
+    the band moved up to if_hz before the decimation (a real recording's I is then the signal at that IF). A cutoff
+    of 0: no low-pass (ideal chips, decimated as they are)."""
 
     def __init__(self, cutoff_hz: float, fs_hz: float, down: int, if_hz: float = 0.0):
-        self.sos = butter(FRONT_END_ORDER, cutoff_hz, fs=fs_hz, output="sos")
-        self.state = np.zeros((self.sos.shape[0], 2), dtype=np.complex128)
+        self.sos = butter(FRONT_END_ORDER, cutoff_hz, fs=fs_hz, output="sos") if cutoff_hz else None
+        self.state = np.zeros((self.sos.shape[0], 2), dtype=np.complex128) if cutoff_hz else None
         self.down = down
         self.if_cycles_per_sample = if_hz / fs_hz
         self.n = 0                    # fast samples filtered so far (the IF's phase)
 
     def filter(self, iq: np.ndarray) -> np.ndarray:
         """Interleaved float IQ in (a whole number of output samples), interleaved float32 IQ out, decimated."""
-        z, self.state = sosfilt(self.sos, iq[0::2] + 1j * iq[1::2], zi=self.state)
+        z = iq[0::2] + 1j * iq[1::2]
+        if self.sos is not None:
+            z, self.state = sosfilt(self.sos, z, zi=self.state)
         if self.if_cycles_per_sample:
             k = self.n + np.arange(z.size, dtype=np.int64)
             z *= np.exp(2j * np.pi * ((k * self.if_cycles_per_sample) % 1.0))
