@@ -52,7 +52,7 @@ LEFT_MIN_THRESHOLDS = 2.0
 # 26.5 and 26.4 (287 tracks, GPS-SDR-SIM behind 1 MHz), where ideal chips hold 28.7, 28.9, 29.0 from the first. Flying,
 # 500 m, +15 dB: PRN 1's windows 23.9, 30.8, 33.8, 35.2 dB, its twin 0.56 chip under a spoofer 15.9 dB stronger,
 # given up on the second by 0.1 dB: GNSS-SDR behind the filter, that satellite taken away, was within 5 m in 3 of 7
-# runs. Judged on the third it is kept, its range 0.1 m off, and so were all 3 runs.
+# runs. Judged on the third it is kept (its range 0.1 m off), and GNSS-SDR was within 5 m in 5 of 5 runs.
 JUDGED_AFTER_WINDOWS = 3
 # a replica on the weaker of two paths is started again on the stronger once it has measured this many (the first
 # spans the settling; the sooner the better, the spoofer is in the output until then)
