@@ -1317,7 +1317,7 @@ def test_a_replica_on_the_weaker_path_of_the_stronger_is_started_again_on_the_st
     assert len(guard._tracks(prn)) == 1 + later_stage
     sample = int(before.channel.latest_epoch_sample - fs * 1e-3)
     assert before.twin_advantage_db < -ROLES_SWAPPED_DB
-    guard._swap_weaker_replicas(sample, 0.6)       # judged only with its twin: nothing measured yet
+    guard._swap_weaker_replicas(sample, 0.6)       # judged once settled: nothing measured yet
     assert events == []
     before.attenuation_db.extend([(20.0, False)] * SWAPPED_AFTER_WINDOWS)
     guard.canceller.front_end.done = True           # the chips' shape decided (here: ideal)

@@ -437,7 +437,7 @@ class FrontEnd:
 
     def __init__(self, cutoff_hz: float, fs_hz: float, down: int, if_hz: float = 0.0):
         self.sos = butter(FRONT_END_ORDER, cutoff_hz, fs=fs_hz, output="sos") if cutoff_hz else None
-        self.state = np.zeros((self.sos.shape[0], 2), dtype=np.complex128) if cutoff_hz else None
+        self.state = None if self.sos is None else np.zeros((self.sos.shape[0], 2), dtype=np.complex128)
         self.down = down
         self.if_cycles_per_sample = if_hz / fs_hz
         self.n = 0                    # fast samples filtered so far (the IF's phase)
